@@ -1,0 +1,33 @@
+# hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
+#   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/
+#   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile)
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PROFILE ?= cpu
+DATASET ?= procedural
+
+.PHONY: setup reproduce test test-unit test-notebooks benchmark clean-results
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: requirements.txt requirements-nodeps.txt scripts/setup.sh
+	PYTHON=$(PYTHON) VENV=$(VENV) bash scripts/setup.sh
+	touch $@
+
+reproduce: setup
+	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET)
+
+test: setup test-unit test-notebooks
+
+test-unit: setup
+	$(PY) -m pytest -q tests
+
+test-notebooks: setup
+	$(PY) -m pytest -q --nbval-lax notebooks
+
+benchmark: setup
+	$(PY) benchmarks/bench_voxelize.py
+
+clean-results:
+	rm -rf results/ci results/cpu results/full

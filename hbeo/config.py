@@ -1,0 +1,116 @@
+"""Run profiles and path settings: the one place that sizes a run and finds data.
+
+Profiles
+    ``ci``   a few objects per class, tiny images, one epoch: the notebooks under nbval.
+    ``cpu``  a scaled-down reproduction that finishes on a 2-core machine.
+    ``full`` paper scale (GPU): all objects, 320x240 images, many views.
+
+Paths (environment variables override the defaults)
+    ``HBEO_VOX30``      the ModelNet10 30^3 grids (``modelnet10_vox30.npz``); default: the
+                        first ``shared/modelnet10_vox30/modelnet10_vox30.npz`` found beside
+                        the repository or the working directory or any of their parents.
+    ``HBEO_DATA``       where downloads go (default ``~/.cache/hbeo``).
+    ``HBEO_CACHE``      voxelization cache (default ``<HBEO_DATA>/cache``).
+    ``HBEO_RESULTS``    where runs write (default ``<repo>/results``).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Sizes of one run. ``None`` means "all there is"."""
+
+    name: str
+    n_train_per_class: int | None   #: objects per class from the training split (procedural: generated)
+    n_test_per_class: int | None    #: objects per class from the test split
+    views_per_object: int           #: rendered depth images per training object
+    image_size: tuple[int, int]     #: (width, height) of depth images, pixels
+    epochs: int                     #: HBEONet training epochs
+    batch_size: int
+    workers: int                    #: worker processes for voxelization and rendering
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+PROFILES: dict[str, Profile] = {
+    "ci": Profile("ci", n_train_per_class=6, n_test_per_class=3, views_per_object=2,
+                  image_size=(80, 60), epochs=1, batch_size=16, workers=1),
+    "cpu": Profile("cpu", n_train_per_class=60, n_test_per_class=20, views_per_object=24,
+                   image_size=(160, 120), epochs=15, batch_size=64, workers=2),
+    "full": Profile("full", n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
+                    image_size=(320, 240), epochs=40, batch_size=128, workers=8),
+}
+
+#: Procedural objects per class when a profile says "all" (the procedural source is unbounded).
+PROCEDURAL_FULL = {"train": 400, "test": 100}
+
+
+def get_profile(name: str | Profile, **overrides) -> Profile:
+    """Profile by name (``ci``, ``cpu``, ``full``), with optional field overrides."""
+    if isinstance(name, Profile):
+        prof = name
+    else:
+        try:
+            prof = PROFILES[name]
+        except KeyError:
+            raise ValueError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}") from None
+    return replace(prof, **overrides) if overrides else prof
+
+
+def _find_upwards(relative: str, starts) -> Path | None:
+    for start in starts:
+        for d in [start, *start.parents]:
+            cand = d / relative
+            if cand.exists():
+                return cand
+    return None
+
+
+def vox30_path() -> Path | None:
+    """Path of the ModelNet10 30^3 grid file, or None when it cannot be found."""
+    env = os.environ.get("HBEO_VOX30")
+    if env:
+        p = Path(env).expanduser()
+        return p / "modelnet10_vox30.npz" if p.is_dir() else p
+    return _find_upwards("shared/modelnet10_vox30/modelnet10_vox30.npz",
+                         [REPO_ROOT.parent, Path.cwd().resolve()])
+
+
+def modelnet10_sample_dir() -> Path | None:
+    """The five-mesh ModelNet10 sample beside the repository (for tests), or None."""
+    env = os.environ.get("HBEO_MODELNET10_SAMPLE")
+    if env:
+        return Path(env).expanduser()
+    return _find_upwards("shared/modelnet10_sample", [REPO_ROOT.parent, Path.cwd().resolve()])
+
+
+def data_dir() -> Path:
+    """Root for downloaded data (``HBEO_DATA``, default ``~/.cache/hbeo``)."""
+    return Path(os.environ.get("HBEO_DATA", Path.home() / ".cache" / "hbeo")).expanduser()
+
+
+def cache_dir() -> Path:
+    """Root of the voxelization cache (``HBEO_CACHE``, default ``<data_dir>/cache``)."""
+    env = os.environ.get("HBEO_CACHE")
+    return Path(env).expanduser() if env else data_dir() / "cache"
+
+
+def run_dir(profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> Path:
+    """Directory a run writes into (created): ``out_dir`` if given (relative paths are taken
+    from the repository root), else ``<results>/<profile>/<dataset>``."""
+    if out_dir:
+        p = Path(out_dir).expanduser()
+        p = p if p.is_absolute() else REPO_ROOT / p
+    else:
+        base = Path(os.environ.get("HBEO_RESULTS", REPO_ROOT / "results"))
+        safe = str(dataset).replace(os.sep, "_").strip("_") or "dataset"
+        p = base / profile / safe
+    p.mkdir(parents=True, exist_ok=True)
+    return p

@@ -1,0 +1,126 @@
+"""Reading triangle meshes from disk: OFF (with ModelNet's quirks), OBJ, PLY, STL.
+
+``read_mesh(path)`` returns a :class:`trimesh.Trimesh` built with ``process=False``:
+vertices exactly as in the file (unused ones included, which matters for the
+3D ShapeNets grid layout), polygons fan-triangulated. Units and frame are the
+file's own.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .errors import DataError
+
+MESH_SUFFIXES = (".off", ".obj", ".ply", ".stl")
+
+
+def _fan(polys: list[list[int]]) -> np.ndarray:
+    """Fan-triangulate polygons given as index lists -> (F, 3) int64."""
+    tris = [(p[0], p[i], p[i + 1]) for p in polys for i in range(1, len(p) - 1)]
+    return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+
+
+def _numbers(block: list[str], width: int, dtype, path, what: str) -> np.ndarray:
+    """Parse lines of at least ``width`` numbers each -> (len(block), width); extra columns dropped."""
+    try:
+        flat = np.array(" ".join(block).split(), dtype=dtype)
+        if flat.size == width * len(block):
+            return flat.reshape(-1, width)
+        return np.array([ln.split()[:width] for ln in block], dtype=dtype).reshape(-1, width)
+    except ValueError:
+        raise DataError(path, f"unreadable {what} line (expected {width} numbers)") from None
+
+
+def _faces(block: list[str], path) -> np.ndarray:
+    """Parse OFF face lines ``n i1 .. in [colour]`` -> fan-triangulated (F, 3) int64."""
+    try:
+        flat = np.array(" ".join(block).split(), dtype=np.int64)
+        if flat.size == 4 * len(block) and (flat[::4] == 3).all():   # the common all-triangle case
+            return flat.reshape(-1, 4)[:, 1:]
+    except ValueError:
+        pass  # colours as floats, or garbage: take the per-line path below
+    polys = []
+    for ln in block:
+        tok = ln.split()
+        try:
+            k = int(tok[0])
+            if k < 3 or len(tok) < k + 1:
+                raise ValueError
+            polys.append([int(x) for x in tok[1:k + 1]])
+        except (ValueError, IndexError):
+            raise DataError(path, f"unreadable face line {ln[:60]!r} (expected 'n i1 ... in' with n >= 3)") from None
+    return _fan(polys)
+
+
+def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
+    """Parse OFF text -> (vertices (V, 3) float64, faces (F, 3) int64).
+
+    Accepts the standard header (``OFF`` line, then ``V F E``), ModelNet's broken
+    one-line header (``OFF1234 5678 0``), ``#`` comments, blank lines, per-vertex or
+    per-face colours after the coordinates, and polygons with any number of sides
+    (fan-triangulated). Raises :class:`DataError` naming ``path`` on anything else.
+    """
+    if "#" in text:
+        text = "\n".join(ln.split("#", 1)[0] for ln in text.splitlines())
+    lines = [ln for ln in (raw.strip() for raw in text.splitlines()) if ln]
+    if not lines or not lines[0].upper().startswith(("OFF", "COFF", "NOFF", "STOFF")):
+        raise DataError(path, "not an OFF file (first line does not start with 'OFF')")
+    head = lines[0]
+    kw = head.split()[0].rstrip("0123456789")  # "OFF1234" -> "OFF"
+    rest = head[len(kw):].split()
+    pos = 1
+    if not rest:  # counts on the next line
+        if len(lines) < 2:
+            raise DataError(path, "OFF header has no vertex/face counts")
+        rest = lines[1].split()
+        pos = 2
+    try:
+        n_v, n_f = int(rest[0]), int(rest[1])
+    except (IndexError, ValueError):
+        raise DataError(path, f"bad OFF counts line {' '.join(rest)!r}; expected 'V F E'") from None
+    if n_v < 0 or n_f < 0:
+        raise DataError(path, f"negative vertex/face count ({n_v}, {n_f})")
+    if len(lines) < pos + n_v + n_f:
+        raise DataError(path, f"truncated OFF: header promises {n_v} vertices and {n_f} faces, "
+                              f"file has {len(lines) - pos} data lines")
+    verts = _numbers(lines[pos:pos + n_v], 3, np.float64, path, "vertex")
+    if not np.isfinite(verts).all():
+        raise DataError(path, "vertex coordinates contain NaN or infinity")
+    faces = _faces(lines[pos + n_v:pos + n_v + n_f], path)
+    if faces.size and (faces.min() < 0 or faces.max() >= n_v):
+        raise DataError(path, f"face refers to vertex {int(faces.max())} but the file has {n_v} vertices")
+    return verts, faces
+
+
+def read_mesh(path) -> trimesh.Trimesh:
+    """Read a mesh file (.off, .obj, .ply, .stl) -> Trimesh (process=False, unused vertices kept).
+
+    Raises :class:`DataError` naming the file when it is missing, unreadable or empty.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(path, "no such mesh file")
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise DataError(path, f"unsupported mesh format {suffix!r}; expected one of {', '.join(MESH_SUFFIXES)}")
+    if suffix == ".off":
+        try:
+            text = path.read_text(errors="strict")
+        except UnicodeDecodeError:
+            raise DataError(path, "not a text OFF file (binary OFF is not supported)") from None
+        verts, faces = parse_off(text, path)
+        mesh = trimesh.Trimesh(verts, faces, process=False, validate=False)
+    else:
+        try:
+            loaded = trimesh.load(os.fspath(path), process=False, force="mesh")
+        except Exception as err:  # trimesh raises many types on malformed files
+            raise DataError(path, f"unreadable {suffix} mesh ({type(err).__name__}: {err})") from None
+        mesh = loaded
+    if len(mesh.faces) == 0:
+        raise DataError(path, "mesh has no faces")
+    mesh.metadata["file"] = os.fspath(path)
+    return mesh

@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Set up hbeo on a fresh Debian machine: Debian libraries for headless rendering, a virtual
+# environment, the pinned Python packages, and the package itself (editable). Idempotent.
+set -euo pipefail
+PYTHON=${PYTHON:-python3}
+VENV=${VENV:-.venv}
+cd "$(dirname "$0")/.."
+
+# Debian packages the renderer needs (OSMesa for CPU machines, EGL for GPUs).
+DEB_PACKAGES="libosmesa6 libegl1 libgl1 libgles2 libglu1-mesa"
+missing=""
+for p in $DEB_PACKAGES; do
+  dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  if command -v apt-get >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    echo "[setup] installing Debian packages:$missing"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
+  else
+    echo "[setup] warning: not a Debian system; install OSMesa/EGL yourself:$missing" >&2
+  fi
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+  "$PYTHON" -c 'import sys; assert sys.version_info[:2] >= (3, 10), "Python >= 3.10 needed"'
+  "$PYTHON" -m venv "$VENV"
+fi
+# pip, without the "Location ... is ignored" noise some mirrors' configurations print; fails loudly.
+pip_q() {
+  local out
+  if ! out=$("$VENV/bin/python" -m pip -q "$@" 2>&1); then
+    printf '%s\n' "$out" | grep -v "is ignored" >&2
+    echo "[setup] pip $* failed" >&2
+    return 1
+  fi
+  printf '%s\n' "$out" | grep -v -e "is ignored" -e '^$' || true
+}
+pip_q install --upgrade pip
+pip_q install -r requirements.txt
+pip_q install --no-deps -r requirements-nodeps.txt
+pip_q install --no-deps -e .
+"$VENV/bin/python" -m ipykernel install --sys-prefix --name python3 >/dev/null
+"$VENV/bin/python" -c "import hbeo, torch, trimesh, pyrender, papermill, nbval; print('[setup] ok:', hbeo.__file__)"
