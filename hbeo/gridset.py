@@ -58,7 +58,7 @@ class GridSet:
         path = Path(path)
         meta = dict(self.meta, format_version=FORMAT_VERSION, split=self.split,
                     classes=list(self.classes), resolution=int(self.grids.shape[1]))
-        _atomic_savez(path, packed=np.packbits(self.grids.reshape(len(self.grids), -1), axis=1),
+        _atomic_savez(path, packed=_pack(self.grids),
                       labels=self.labels.astype(np.int64), ids=self.ids.astype(str),
                       meta=np.array(json.dumps(meta)))
         return path
@@ -81,6 +81,11 @@ class GridSet:
         r = int(meta["resolution"])
         grids = np.unpackbits(packed, axis=1, count=r ** 3).astype(bool).reshape(-1, r, r, r)
         return cls(grids, labels, ids, tuple(meta["classes"]), meta["split"], meta)
+
+
+def _pack(grids: np.ndarray) -> np.ndarray:
+    """(N, R, R, R) bool -> (N, ceil(R^3 / 8)) uint8 bit-packed rows."""
+    return np.packbits(grids.reshape(len(grids), int(np.prod(grids.shape[1:]))), axis=1)
 
 
 def _atomic_savez(path: Path, **arrays) -> None:
@@ -152,7 +157,7 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
                disable=not progress, initial=len(records) - sum(len(chunks[k]) for k in todo))
 
     def done(k, grids):
-        _atomic_savez(paths[k], grids=np.packbits(grids.reshape(len(grids), -1), axis=1))
+        _atomic_savez(paths[k], grids=_pack(grids))
         bar.update(len(chunks[k]))
 
     needs_mesh = any(not r.has_grid for r in records)

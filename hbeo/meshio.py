@@ -8,6 +8,7 @@ file's own.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,36 @@ def _faces(block: list[str], path) -> np.ndarray:
     return _fan(polys)
 
 
+def _off_header(text: str, path) -> tuple[int, int, int]:
+    """-> (n_vertices, n_faces, offset of the first data character) of OFF text."""
+    pos, keyword, counts = 0, None, None
+    while counts is None:
+        if pos >= len(text):
+            raise DataError(path, "OFF header has no vertex/face counts" if keyword else
+                            "not an OFF file (empty)")
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        line = text[pos:end].split("#", 1)[0].strip()
+        pos = end + 1
+        if not line:
+            continue
+        if keyword is None:
+            if not line.upper().startswith(("OFF", "COFF", "NOFF", "STOFF")):
+                raise DataError(path, "not an OFF file (first line does not start with 'OFF')")
+            keyword = line.split()[0].rstrip("0123456789")  # "OFF1234" -> "OFF"
+            line = line[len(keyword):].strip()              # ModelNet's "OFF1234 5678 0"
+            if not line:
+                continue
+        counts = line.split()
+    try:
+        n_v, n_f = int(counts[0]), int(counts[1])
+    except (IndexError, ValueError):
+        raise DataError(path, f"bad OFF counts line {' '.join(counts)!r}; expected 'V F E'") from None
+    if n_v < 0 or n_f < 0:
+        raise DataError(path, f"negative vertex/face count ({n_v}, {n_f})")
+    return n_v, n_f, min(pos, len(text))
+
+
 def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
     """Parse OFF text -> (vertices (V, 3) float64, faces (F, 3) int64).
 
@@ -64,33 +95,30 @@ def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
     per-face colours after the coordinates, and polygons with any number of sides
     (fan-triangulated). Raises :class:`DataError` naming ``path`` on anything else.
     """
-    if "#" in text:
-        text = "\n".join(ln.split("#", 1)[0] for ln in text.splitlines())
-    lines = [ln for ln in (raw.strip() for raw in text.splitlines()) if ln]
-    if not lines or not lines[0].upper().startswith(("OFF", "COFF", "NOFF", "STOFF")):
-        raise DataError(path, "not an OFF file (first line does not start with 'OFF')")
-    head = lines[0]
-    kw = head.split()[0].rstrip("0123456789")  # "OFF1234" -> "OFF"
-    rest = head[len(kw):].split()
-    pos = 1
-    if not rest:  # counts on the next line
-        if len(lines) < 2:
-            raise DataError(path, "OFF header has no vertex/face counts")
-        rest = lines[1].split()
-        pos = 2
-    try:
-        n_v, n_f = int(rest[0]), int(rest[1])
-    except (IndexError, ValueError):
-        raise DataError(path, f"bad OFF counts line {' '.join(rest)!r}; expected 'V F E'") from None
-    if n_v < 0 or n_f < 0:
-        raise DataError(path, f"negative vertex/face count ({n_v}, {n_f})")
-    if len(lines) < pos + n_v + n_f:
-        raise DataError(path, f"truncated OFF: header promises {n_v} vertices and {n_f} faces, "
-                              f"file has {len(lines) - pos} data lines")
-    verts = _numbers(lines[pos:pos + n_v], 3, np.float64, path, "vertex")
+    n_v, n_f, start = _off_header(text, path)
+    body = text[start:]
+    verts = faces = None
+    if "#" not in body:   # fast path: plain x y z rows, then "3 i j k" rows (ModelNet's files)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            try:   # stops at text it cannot read: numpy 1 warns, numpy 2 raises
+                flat = np.fromstring(body, sep=" ")
+            except ValueError:
+                flat = np.empty(0)
+        if flat.size == 3 * n_v + 4 * n_f:
+            tri = flat[3 * n_v:].reshape(-1, 4)
+            if (tri[:, 0] == 3).all() and (tri == np.round(tri)).all():
+                verts, faces = flat[:3 * n_v].reshape(-1, 3), tri[:, 1:].astype(np.int64)
+    if verts is None:
+        lines = [ln.split("#", 1)[0].strip() for ln in body.splitlines()]
+        lines = [ln for ln in lines if ln]
+        if len(lines) < n_v + n_f:
+            raise DataError(path, f"truncated OFF: header promises {n_v} vertices and {n_f} faces, "
+                                  f"file has {len(lines)} data lines")
+        verts = _numbers(lines[:n_v], 3, np.float64, path, "vertex")
+        faces = _faces(lines[n_v:n_v + n_f], path)
     if not np.isfinite(verts).all():
         raise DataError(path, "vertex coordinates contain NaN or infinity")
-    faces = _faces(lines[pos + n_v:pos + n_v + n_f], path)
     if faces.size and (faces.min() < 0 or faces.max() >= n_v):
         raise DataError(path, f"face refers to vertex {int(faces.max())} but the file has {n_v} vertices")
     return verts, faces

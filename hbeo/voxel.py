@@ -126,7 +126,7 @@ def fill_solid(surface: np.ndarray, close: int = 0) -> np.ndarray:
 
 
 def voxelize(mesh_or_path, resolution: int = C.RESOLUTION, step: float = 0.5,
-             close: int = 0) -> np.ndarray:
+             close: int = 1) -> np.ndarray:
     """Mesh (Trimesh, path or (vertices, faces)) -> solid bool grid (R, R, R) in the 3D ShapeNets layout.
 
     Robust to meshes that are not watertight, self-intersect or have many parts.
