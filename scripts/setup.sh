@@ -27,7 +27,7 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -c 'import sys; assert sys.version_info[:2] >= (3, 10), "Python >= 3.10 needed"'
   "$PYTHON" -m venv "$VENV"
 fi
-# pip, without the "Location ... is ignored" noise some mirrors' configurations print; fails loudly.
+# pip, quiet on success; on failure its whole output (minus mirror "is ignored" noise) and exit 1.
 pip_q() {
   local out
   if ! out=$("$VENV/bin/python" -m pip -q "$@" 2>&1); then
@@ -35,7 +35,6 @@ pip_q() {
     echo "[setup] pip $* failed" >&2
     return 1
   fi
-  printf '%s\n' "$out" | grep -v -e "is ignored" -e '^$' || true
 }
 pip_q install --upgrade pip
 pip_q install -r requirements.txt
