@@ -45,9 +45,10 @@ class VBPCA(TransformerMixin, BaseEstimator):
         (a :class:`ConvergenceWarning` is issued when the cap is hit first).
     mean_precision : beta, precision of the Gaussian prior on the mean (1.0: unit variance).
     ard_a, ard_b, noise_a, noise_b : Gamma hyperprior shape/rate on alpha and tau (broad).
-    prune_tol : components whose variance is below ``prune_tol`` x the total variance,
-        or below the noise variance (where PPCA's loading would be zero), count as
-        switched off by ARD and are dropped.
+    prune_tol : a direction counts as switched off by ARD, and is dropped, when its
+        variance is below ``prune_tol`` x the total variance or below its own posterior
+        spread (d x the posterior variance of the loading: the prior, not the data,
+        determines it).
 
     Fitted attributes
     -----------------
@@ -61,7 +62,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
     total_variance_ : mean squared distance of the samples to ``mean_``.
     """
 
-    def __init__(self, n_components=None, variance=None, max_iter=500, tol=1e-6,
+    def __init__(self, n_components=None, variance=None, max_iter=1000, tol=1e-7,
                  mean_precision=1.0, ard_a=1e-3, ard_b=1e-3, noise_a=1e-3, noise_b=1e-3,
                  prune_tol=1e-6):
         self.n_components = n_components
@@ -101,15 +102,26 @@ class VBPCA(TransformerMixin, BaseEstimator):
         out_dtype = np.float32 if X.dtype == np.float32 else np.float64
 
         # Coordinates of the data in an orthonormal basis V of its span: X = C V^T.
-        exact32 = X.dtype.kind in "bu" or (X.dtype.kind == "i" and np.abs(X).max() <= 1)
-        Xg = X.astype(np.float32 if exact32 and d < 2 ** 24 else np.float64, copy=False)
-        G = (Xg @ Xg.T).astype(np.float64)           # integer-exact in float32 for 0/1 data
-        sq_norms = np.diag(G).copy()                  # ||t_n||^2
-        evals, U = linalg.eigh(G)
-        keep = evals > max(evals.max(initial=0.0), 0.0) * 1e-12 * n
-        evals, U = evals[keep][::-1], U[:, keep][:, ::-1]
-        S = np.sqrt(evals)
-        C = U * S                                     # (n, r)
+        if n <= d:   # d >> n: V from the n x n Gram matrix, V = X^T U S^-1, never d x d
+            exact32 = X.dtype.kind in "bu" or (X.dtype.kind == "i" and np.abs(X).max() <= 1)
+            Xg = X.astype(np.float32 if exact32 and d < 2 ** 24 else np.float64, copy=False)
+            G = (Xg @ Xg.T).astype(np.float64)           # integer-exact in float32 for 0/1 data
+            sq_norms = np.diag(G).copy()                  # ||t_n||^2
+            evals, U = linalg.eigh(G)
+            keep = evals > max(evals.max(initial=0.0), 0.0) * 1e-12 * n
+            evals, U = evals[keep][::-1], U[:, keep][:, ::-1]
+            S = np.sqrt(evals)
+            C = U * S                                     # (n, r)
+            proj = U / S
+
+            def to_features(A):                           # span coordinates (r, j) -> (d, j)
+                return Xg.T @ (proj @ A)
+        else:        # n > d: the standard basis will do
+            C = X.astype(np.float64)
+            sq_norms = np.einsum("ij,ij->i", C, C)
+
+            def to_features(A):
+                return A
         r = C.shape[1]
 
         q_max = min(n - 1, r) if r else 0
@@ -118,22 +130,22 @@ class VBPCA(TransformerMixin, BaseEstimator):
         with threadpool_limits(1 if q < 256 else None, user_api="blas"):  # small: threads only cost
             self._fit_coords(C, sq_norms, d, q)
 
-        # Back to feature space: V = X^T U S^-1, never d x d.
-        proj = np.zeros((n, 0)) if r == 0 else U / S
         Mw, mmu = self._Mw, self._mmu
-        self.mean_ = (Xg.T @ (proj @ mmu)).astype(out_dtype) if r else np.zeros(d, out_dtype)
+        self.mean_ = to_features(mmu).astype(out_dtype) if r else np.zeros(d, out_dtype)
         total = float(np.mean(sq_norms) - 2 * np.mean(C @ mmu) + mmu @ mmu) if r else 0.0
         self.total_variance_ = max(total, 0.0)
         if q:
             s2, R = linalg.eigh(Mw.T @ Mw)            # W^T W = Mw^T Mw (V orthonormal)
             order = np.argsort(s2)[::-1]
             s2, R = np.clip(s2[order], 0, None), R[:, order]
-            # switched off: ARD shrank it below the noise floor (PPCA's zero-loading criterion)
-            floor = max(self.prune_tol * self.total_variance_, 1.0 / self._tau, np.finfo(float).tiny)
-            active = s2 > floor
+            # switched off by ARD: the posterior mean of the column is smaller than its posterior
+            # spread (d x its variance), i.e. the prior, not the data, determines it
+            spread = d * np.einsum("ik,ij,jk->k", R, self._Sw, R)
+            floor = max(self.prune_tol * self.total_variance_, np.finfo(float).tiny)
+            active = (s2 > spread) & (s2 > floor)
             s2, R = s2[active], R[:, active]
             dirs_coords = (Mw @ R) / np.sqrt(s2)      # (r, k) orthonormal
-            comps = (Xg.T @ (proj @ dirs_coords)).T
+            comps = to_features(dirs_coords).T
             alpha_rot = np.einsum("ik,i,ik->k", R, self._alpha, R)
         else:
             s2, comps, alpha_rot = np.zeros(0), np.zeros((0, d)), np.zeros(0)
@@ -153,7 +165,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
         self.alpha_ = alpha_rot[:k]
         self.n_components_ = k
         self.noise_variance_ = 1.0 / self._tau
-        del self._Mw, self._mmu
+        del self._Mw, self._mmu, self._Sw
         return self
 
     def _fit_coords(self, C, sq_norms, d, q):
@@ -232,7 +244,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
             warnings.warn(f"VBPCA stopped at max_iter={self.max_iter} before the lower bound "
                           f"converged (tol={self.tol})", ConvergenceWarning, stacklevel=3)
         self.elbo_ = np.array(elbo)
-        self._Mw, self._mmu, self._tau, self._alpha = Mw, mmu, float(tau), alpha
+        self._Mw, self._mmu, self._tau, self._alpha, self._Sw = Mw, mmu, float(tau), alpha, Sw
 
     # --------------------------------------------------------------- inference
     def _scaled(self):
