@@ -14,11 +14,12 @@ from .errors import HBEOError
 NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
 
 
-def _dataset_arg(p):
+def _dataset_arg(p, profile="cpu"):
     p.add_argument("--dataset", default="procedural",
                    help="procedural | modelnet10 | modelnet10-vox30 | PATH to a ModelNet-layout folder "
                         "(default: procedural)")
-    p.add_argument("--profile", default="cpu", help="ci | cpu | full (sizes procedural data; default: cpu)")
+    p.add_argument("--profile", default=profile,
+                   help=f"ci | cpu | full: objects per class and run sizes (default: {profile})")
 
 
 def cmd_data(args) -> int:
@@ -56,6 +57,47 @@ def cmd_voxelize(args) -> int:
     return 0
 
 
+def cmd_subspace(args) -> int:
+    import json
+    import pandas as pd
+    from . import completion, config, datasets
+    from .gridset import build_gridset
+    from .subspace import ObjectSubspace
+    prof = config.get_profile(args.profile)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ds = datasets.get_dataset(args.dataset, profile=prof)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    out = config.run_dir(prof.name, args.dataset, args.out)
+    sets = {s: build_gridset(ds, datasets.select(ds, s, prof), s, workers=prof.workers) for s in ("train", "test")}
+    if args.components is not None:
+        sub = ObjectSubspace(n_components=args.components)
+    else:
+        sub = ObjectSubspace(variance=args.variance, shared_dim=args.shared_dim)
+    sub.fit(sets["train"].grids, sets["train"].labels, sets["train"].classes)
+    sub.save(out / "subspace.npz")
+    counts = pd.DataFrame({"train objects": sets["train"].counts(), "components": sub.n_components_})
+    print(f"\nper-class components (variance fraction {sub.variance_used_}; paper: 30-70 per class at 0.6):")
+    print(counts.to_string())
+    print(f"shared dimension: {sub.dim_} (paper: 344)   -> {out / 'subspace.npz'}")
+    known = completion.random_mask(sets["test"].grids.shape, args.known, seed=args.seed)
+    rows = {}
+    for mode, mask in (("full", None), ("partial", known)):
+        df = completion.evaluate(sub, sets["test"], mask, method=args.method)
+        df.to_csv(out / f"subspace_completion_{mode}.csv", index=False)
+        rows[mode] = completion.by_class(df)
+    table = pd.concat({m: r[["edt", "naive"]] for m, r in rows.items()}, axis=1)
+    print(f"\ntest completion errors, mean per class (full projection; partial from a random "
+          f"{args.known:.0%}-known mask, seed {args.seed}, {args.method}):")
+    print(table.round(3).to_string())
+    summary = {"dataset": ds.name, "profile": prof.name, "dim": sub.dim_, "variance_used": sub.variance_used_,
+               "n_components": sub.n_components_, "known_fraction": args.known, "seed": args.seed,
+               "method": args.method, "errors": {m: r.round(6).to_dict(orient="index") for m, r in rows.items()}}
+    (out / "subspace_summary.json").write_text(json.dumps(summary, indent=2))
+    return 0
+
+
 def cmd_reproduce(args) -> int:
     from .reproduce import run_notebooks
     run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out,
@@ -78,6 +120,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")
     p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
     p.set_defaults(func=cmd_voxelize)
+    p = sub.add_parser("subspace", help="fit the shared VBPCA subspace; print components and completion errors")
+    _dataset_arg(p, profile="full")
+    p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--variance", type=float, default=0.6, help="variance fraction per class (default 0.6, the paper's)")
+    g.add_argument("--shared-dim", type=int, help="choose one variance fraction giving this shared dimension (paper: 344)")
+    g.add_argument("--components", type=int, help="fixed component count per class")
+    p.add_argument("--method", choices=("lstsq", "lasso"), default="lstsq", help="partial projection solver")
+    p.add_argument("--known", type=float, default=0.5, help="fraction of voxels known in the partial test (0.5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random mask")
+    p.set_defaults(func=cmd_subspace)
     p = sub.add_parser("reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")

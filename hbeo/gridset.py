@@ -180,3 +180,23 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     for p in paths:
         p.unlink(missing_ok=True)
     return gs
+
+
+def run_gridsets(dataset: str, profile, run, progress: bool = True) -> dict[str, GridSet]:
+    """The run's ``{"train": GridSet, "test": GridSet}``: read from ``run/grids_<split>.npz``
+    (notebook 01 writes them) when present, else built from the dataset (cached) and written there."""
+    from . import datasets
+    prof = config.get_profile(profile)
+    run = Path(run)
+    out, ds = {}, None
+    for split in C.SPLITS:
+        path = run / f"grids_{split}.npz"
+        if path.exists():
+            out[split] = GridSet.load(path)
+            continue
+        if ds is None:
+            ds = datasets.get_dataset(dataset, profile=prof)
+        out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.workers,
+                                   progress=progress)
+        out[split].save(path)
+    return out

@@ -59,7 +59,7 @@ class ObjectSubspace:
     ----------
     variance : fraction of each class's variance its components must reach (paper: 0.6).
     n_components : int or {class: int}; a fixed component count per class instead of
-        ``variance`` (ARD may still leave fewer).
+        ``variance`` (kept even where ARD would switch a direction off; at most n_c - 1).
     shared_dim : if set, ignore ``variance`` and choose one common variance fraction,
         the smallest for which the shared basis reaches this many dimensions (e.g. 344,
         the paper's); the fraction found is ``variance_used_``.
@@ -69,7 +69,9 @@ class ObjectSubspace:
 
     Fitted attributes: ``basis_`` (d, k) float32 orthonormal; ``dim_`` = k; ``classes_``;
     ``class_means_`` (m, d); ``class_components_`` {class: (k_c, d)};
-    ``class_variance_ratio_`` {class: (k_c,)}; ``n_components_`` {class: k_c};
+    ``class_variance_ratio_`` {class: (k_c,)}; ``class_spectrum_`` {class: variance ratios of
+    all active VBPCA directions (up to max_components)}; ``n_components_`` {class: k_c};
+    ``class_total_variance_`` {class: mean squared distance of its grids to its mean};
     ``variance_used_``; ``singular_values_``; ``fingerprint_``.
     """
 
@@ -109,29 +111,33 @@ class ObjectSubspace:
                 cap = fixed[name] if isinstance(fixed, dict) else int(fixed)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)  # "variance not reached" is handled below
-                models[name] = VBPCA(n_components=cap, variance=None, **self.vbpca).fit(Xc)
+                kw = dict(self.vbpca, prune=False) if fixed is not None else self.vbpca
+                models[name] = VBPCA(n_components=cap, variance=None, **kw).fit(Xc)
             means.append(models[name].mean_.astype(np.float32))
+        spectra = {c: m.explained_variance_ratio_ for c, m in models.items()}
         if fixed is not None:
             f = None
         elif self.shared_dim is not None:
-            f = self._fraction_for_dim(models, int(self.shared_dim))
+            f = self._fraction_for_dim(spectra, int(self.shared_dim))
         else:
             f = self.variance
-        counts = {c: self._count(m, f) for c, m in models.items()}
+        counts = {c: self._count_ratio(r, f) for c, r in spectra.items()}
         self.classes_ = classes
         self.variance_used_ = f
         self.n_components_ = counts
         self.class_components_ = {c: models[c].components_[:counts[c]].astype(np.float32) for c in classes}
         self.class_variance_ratio_ = {c: models[c].explained_variance_ratio_[:counts[c]] for c in classes}
+        self.class_spectrum_ = spectra
         self.class_noise_variance_ = {c: float(models[c].noise_variance_) for c in classes}
+        self.class_total_variance_ = {c: float(models[c].total_variance_) for c in classes}
         self.class_means_ = np.stack(means)
         self._orthonormalize()
         self.fingerprint_ = data_fingerprint(X, labels)
         return self
 
     @staticmethod
-    def _count(model: VBPCA, f: float | None) -> int:
-        ratio = model.explained_variance_ratio_
+    def _count_ratio(ratio: np.ndarray, f: float | None) -> int:
+        """Fewest leading directions whose variance ratios reach ``f`` (all of them if f is None)."""
         if f is None or len(ratio) == 0:
             return len(ratio)
         reach = np.cumsum(ratio) >= f - 1e-12
@@ -141,10 +147,10 @@ class ObjectSubspace:
             return len(ratio)
         return int(np.argmax(reach)) + 1
 
-    def _fraction_for_dim(self, models, target: int) -> float:
+    def _fraction_for_dim(self, spectra, target: int) -> float:
         """Smallest common variance fraction whose counts sum (plus one mean per class) to >= target."""
         def dim(f):
-            return sum(self._count(m, f) for m in models.values()) + len(models)
+            return sum(self._count_ratio(r, f) for r in spectra.values()) + len(spectra)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if dim(1.0) < target:
@@ -241,14 +247,17 @@ class ObjectSubspace:
         meta = {"format_version": FORMAT_VERSION, "params": self.get_params(), "classes": list(self.classes_),
                 "n_components": self.n_components_, "variance_used": self.variance_used_,
                 "dim": self.dim_, "fingerprint": self.fingerprint_,
-                "class_noise_variance": self.class_noise_variance_}
+                "class_noise_variance": self.class_noise_variance_,
+                "class_total_variance": self.class_total_variance_}
         comps = np.concatenate([self.class_components_[c] for c in self.classes_])
         ratios = np.concatenate([self.class_variance_ratio_[c] for c in self.classes_])
+        spectra = np.concatenate([self.class_spectrum_[c] for c in self.classes_])
+        meta["spectrum_sizes"] = [len(self.class_spectrum_[c]) for c in self.classes_]
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as f:
-                np.savez(f, basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios,
+                np.savez(f, basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios, spectra=spectra,
                          singular_values=self.singular_values_, meta=np.array(json.dumps(meta)))
             os.replace(tmp, path)
         except BaseException:
@@ -263,7 +272,7 @@ class ObjectSubspace:
         try:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(str(z["meta"]))
-                arrays = {k: z[k] for k in ("basis", "means", "components", "ratios", "singular_values")}
+                arrays = {k: z[k] for k in ("basis", "means", "components", "ratios", "spectra", "singular_values")}
         except FileNotFoundError:
             raise DataError(path, "no such subspace file") from None
         except Exception as err:
@@ -276,13 +285,40 @@ class ObjectSubspace:
         self.variance_used_ = meta["variance_used"]
         self.fingerprint_ = meta["fingerprint"]
         self.class_noise_variance_ = meta["class_noise_variance"]
+        self.class_total_variance_ = meta["class_total_variance"]
         self.basis_, self.class_means_ = arrays["basis"], arrays["means"]
         self.singular_values_ = arrays["singular_values"]
         self.dim_ = self.basis_.shape[1]
         splits = np.cumsum([self.n_components_[c] for c in self.classes_])[:-1]
         self.class_components_ = dict(zip(self.classes_, np.split(arrays["components"], splits)))
         self.class_variance_ratio_ = dict(zip(self.classes_, np.split(arrays["ratios"], splits)))
+        self.class_spectrum_ = dict(zip(self.classes_, np.split(arrays["spectra"],
+                                                                np.cumsum(meta["spectrum_sizes"])[:-1])))
         return self
+
+    def eigen_object(self, cls: str, mode: int | None = None, sigmas: float = 0.0) -> np.ndarray:
+        """Float grid (30, 30, 30): the class mean, moved ``sigmas`` standard deviations along
+        component ``mode`` (0-based) when given."""
+        self._check()
+        i = self.classes_.index(cls)
+        field = self.class_means_[i].astype(np.float64)
+        if mode is not None:
+            std = np.sqrt(self.class_variance_ratio_[cls][mode] * self.class_total_variance_[cls])
+            field = field + sigmas * std * self.class_components_[cls][mode]
+        r = round(field.size ** (1 / 3))
+        return field.reshape(r, r, r)
+
+    def fraction_for_dim(self, target: int) -> float:
+        """Smallest common variance fraction that would give a shared dimension >= ``target``
+        (counted as components plus one mean per class, from the stored spectra)."""
+        self._check()
+        return self._fraction_for_dim(self.class_spectrum_, int(target))
+
+    def counts_at(self, fraction: float) -> dict[str, int]:
+        """Components each class would keep at another variance fraction (from the stored spectra)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return {c: self._count_ratio(r, fraction) for c, r in self.class_spectrum_.items()}
 
 
 def _fista_lasso(A: np.ndarray, b: np.ndarray, lam: float, max_iter: int, tol: float) -> np.ndarray:

@@ -49,6 +49,8 @@ class VBPCA(TransformerMixin, BaseEstimator):
         variance is below ``prune_tol`` x the total variance or below its own posterior
         spread (d x the posterior variance of the loading: the prior, not the data,
         determines it).
+    prune : set False to keep all ``n_components`` directions (a fixed count) even where ARD
+        switched them off.
 
     Fitted attributes
     -----------------
@@ -64,7 +66,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
 
     def __init__(self, n_components=None, variance=None, max_iter=1000, tol=1e-7,
                  mean_precision=1.0, ard_a=1e-3, ard_b=1e-3, noise_a=1e-3, noise_b=1e-3,
-                 prune_tol=1e-6):
+                 prune_tol=1e-6, prune=True):
         self.n_components = n_components
         self.variance = variance
         self.max_iter = max_iter
@@ -75,6 +77,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
         self.noise_a = noise_a
         self.noise_b = noise_b
         self.prune_tol = prune_tol
+        self.prune = prune
 
     # ------------------------------------------------------------------ fitting
     def _check_X(self, X, fitted=False):
@@ -142,7 +145,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
             # spread (d x its variance), i.e. the prior, not the data, determines it
             spread = d * np.einsum("ik,ij,jk->k", R, self._Sw, R)
             floor = max(self.prune_tol * self.total_variance_, np.finfo(float).tiny)
-            active = (s2 > spread) & (s2 > floor)
+            active = ((s2 > spread) & (s2 > floor)) if self.prune else s2 > np.finfo(float).tiny
             s2, R = s2[active], R[:, active]
             dirs_coords = (Mw @ R) / np.sqrt(s2)      # (r, k) orthonormal
             comps = to_features(dirs_coords).T

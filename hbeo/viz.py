@@ -89,4 +89,20 @@ def class_gallery(gridset, per_class: int = 3, **kw):
     return gallery(picks, titles, ncols=per_class * 2 if per_class <= 3 else per_class, **kw)
 
 
+def eigen_gallery(subspace, classes=None, modes: int = 2, sigmas: float = 2.0, **kw):
+    """Eigen-objects: per class, the mean and the mean moved -/+ ``sigmas`` standard deviations
+    along each of the first ``modes`` components (fields thresholded at 0.5)."""
+    grids, titles = [], []
+    for c in classes or subspace.classes_:
+        n = min(modes, subspace.n_components_[c])
+        grids.append(subspace.eigen_object(c) >= 0.5)
+        titles.append(f"{c}\nmean")
+        for j in range(modes):
+            for sgn in (-1, 1):
+                ok = j < n
+                grids.append(subspace.eigen_object(c, j, sgn * sigmas) >= 0.5 if ok else np.zeros((1, 1, 1), bool))
+                titles.append(f"mode {j + 1} {'-' if sgn < 0 else '+'}{sigmas:g}σ" if ok else "")
+    return gallery(grids, titles, ncols=1 + 2 * modes, **kw)
+
+
 assert C.RESOLUTION == 30  # the renderer's defaults assume the standard grid size

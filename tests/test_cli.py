@@ -34,3 +34,16 @@ def test_voxelize_writes_grids(tmp_path, sample_dir):
     from hbeo.gridset import GridSet
     gs = GridSet.load(tmp_path / "grids_train.npz")
     assert len(gs) == 5
+
+
+def test_subspace_command_fits_and_reports(tmp_path):
+    import json
+    out = run("subspace", "--dataset", "procedural", "--profile", "ci", "--out", str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    assert "shared dimension:" in out.stdout and "naive" in out.stdout
+    summary = json.loads((tmp_path / "subspace_summary.json").read_text())
+    assert summary["dim"] == sum(summary["n_components"].values()) + 10
+    assert set(summary["errors"]) == {"full", "partial"}
+    assert 0 < summary["errors"]["full"]["all"]["naive"] <= 1
+    from hbeo.subspace import ObjectSubspace
+    assert ObjectSubspace.load(tmp_path / "subspace.npz").dim_ == summary["dim"]

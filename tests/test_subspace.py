@@ -1,0 +1,126 @@
+import numpy as np
+import pytest
+
+from hbeo import datasets, metrics
+from hbeo.errors import DataError
+from hbeo.gridset import build_gridset
+from hbeo.subspace import ObjectSubspace
+
+CLASSES = ("bed", "chair", "table")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    ds = datasets.ProceduralDataset(n_train=12, n_test=3, seed=7, classes=CLASSES)
+    cache = tmp_path_factory.mktemp("cache")
+    tr = build_gridset(ds, ds.records("train"), "train", cache=cache, progress=False)
+    te = build_gridset(ds, ds.records("test"), "test", cache=cache, progress=False)
+    return tr, te
+
+
+@pytest.fixture(scope="module")
+def fitted(data):
+    tr, _ = data
+    return ObjectSubspace(variance=0.6).fit(tr.grids, tr.labels, tr.classes, progress=False)
+
+
+def test_shared_basis_is_orthonormal_and_spans_components_and_means(fitted):
+    S = fitted
+    W = S.basis_.astype(np.float64)
+    assert W.shape == (27000, S.dim_)
+    assert np.allclose(W.T @ W, np.eye(S.dim_), atol=1e-4)
+    assert S.dim_ == sum(S.n_components_.values()) + len(CLASSES)   # generic data: full rank
+    for c in CLASSES:
+        M = np.vstack([S.class_components_[c], S.class_means_[CLASSES.index(c)]]).astype(np.float64)
+        resid = M - (M @ W) @ W.T
+        assert np.abs(resid).max() < 1e-3 * np.abs(M).max()
+        assert np.cumsum(S.class_variance_ratio_[c])[-1] >= 0.6
+
+
+def test_reconstruction_of_held_out_objects(fitted, data):
+    _, te = data
+    rec = fitted.reconstruct(fitted.project(te.grids), threshold=0.5)
+    assert rec.dtype == bool and rec.shape == te.grids.shape
+    assert metrics.iou(te.grids, rec).mean() > 0.5
+
+
+def test_partial_projection_with_everything_known_is_full_projection(fitted, data):
+    _, te = data
+    known = np.ones_like(te.grids)
+    exact = fitted.partial_project(te.grids, known, ridge=0.0)
+    assert np.allclose(exact, fitted.project(te.grids), atol=1e-3)
+
+
+def test_partial_projection_solves_the_masked_normal_equations(fitted, data):
+    _, te = data
+    rng = np.random.default_rng(0)
+    for frac in (0.3, 0.8):                        # direct and complement ways of building A
+        known = rng.random(te.grids.shape) < frac
+        x = fitted.partial_project(te.grids, known, ridge=1e-3).astype(np.float64)
+        W = fitted.basis_.astype(np.float64)
+        for i in range(len(x)):
+            k = known[i].ravel()
+            grad = W[k].T @ (W[k] @ x[i] - te.grids[i].ravel()[k]) + 1e-3 * x[i]
+            assert np.abs(grad).max() < 1e-3 * max(1.0, np.abs(W[k].T @ te.grids[i].ravel()[k]).max())
+
+
+def test_partial_projection_completes_a_half_hidden_object(fitted, data):
+    tr, _ = data
+    g = tr.grids[:6]
+    known = np.zeros_like(g)
+    known[:, :, :15] = True                       # the y < 15 half is unobserved
+    rec = fitted.reconstruct(fitted.partial_project(g, known), threshold=0.5)
+    hidden_only = g.copy()
+    hidden_only[:, :, :15] = False
+    assert metrics.iou(g, rec).mean() > metrics.iou(g, g & known).mean()   # better than what was seen
+
+
+def test_lasso_matches_lstsq_without_penalty_and_sparsifies_with_it(fitted, data):
+    _, te = data
+    known = np.ones_like(te.grids)
+    plain = fitted.partial_project(te.grids, known, ridge=0.0)
+    l0 = fitted.partial_project(te.grids, known, method="lasso", lam=0.0, max_iter=50)
+    assert np.allclose(l0, plain, atol=1e-3)
+    big = fitted.partial_project(te.grids, known, method="lasso", lam=1e6)
+    assert not big.any()
+    small = fitted.partial_project(te.grids, known, method="lasso", lam=0.5)
+    assert (small == 0).sum() > (plain == 0).sum()
+
+
+def test_fixed_counts_and_shared_dim_target(data):
+    tr, _ = data
+    fixed = ObjectSubspace(n_components={"bed": 2, "chair": 3, "table": 1}).fit(
+        tr.grids, tr.labels, tr.classes, progress=False)
+    assert fixed.n_components_ == {"bed": 2, "chair": 3, "table": 1} and fixed.dim_ == 9
+    target = ObjectSubspace(shared_dim=15).fit(tr.grids, tr.labels, tr.classes, progress=False)
+    assert target.dim_ >= 15
+    lower = ObjectSubspace(variance=target.variance_used_ - 1e-6).fit(tr.grids, tr.labels, tr.classes,
+                                                                      progress=False)
+    assert lower.dim_ < 15                         # the smallest fraction that reaches the target
+    with pytest.raises(ValueError, match="out of reach"):
+        ObjectSubspace(shared_dim=10_000).fit(tr.grids, tr.labels, tr.classes, progress=False)
+
+
+def test_save_load_round_trip(fitted, data, tmp_path):
+    _, te = data
+    back = ObjectSubspace.load(fitted.save(tmp_path / "s.npz"))
+    assert back.dim_ == fitted.dim_ and back.fingerprint_ == fitted.fingerprint_
+    assert back.n_components_ == fitted.n_components_ and back.classes_ == fitted.classes_
+    assert np.array_equal(back.project(te.grids), fitted.project(te.grids))
+    for c in CLASSES:
+        assert np.array_equal(back.class_components_[c], fitted.class_components_[c])
+    (tmp_path / "bad.npz").write_text("nope")
+    with pytest.raises(DataError, match=r"bad\.npz"):
+        ObjectSubspace.load(tmp_path / "bad.npz")
+
+
+def test_bad_training_data(data):
+    tr, _ = data
+    g = tr.grids.copy()
+    g[3] = False
+    with pytest.raises(ValueError, match="empty grids"):
+        ObjectSubspace().fit(g, tr.labels, tr.classes, progress=False)
+    with pytest.raises(ValueError, match="labels"):
+        ObjectSubspace().fit(tr.grids, tr.labels[:-1], tr.classes, progress=False)
+    with pytest.raises(RuntimeError, match="not fitted"):
+        ObjectSubspace().project(tr.grids)
