@@ -124,3 +124,25 @@ def test_bad_training_data(data):
         ObjectSubspace().fit(tr.grids, tr.labels[:-1], tr.classes, progress=False)
     with pytest.raises(RuntimeError, match="not fitted"):
         ObjectSubspace().project(tr.grids)
+
+
+def test_eigen_objects_and_counts_from_spectra(fitted):
+    S = fitted
+    c = "chair"
+    i = S.classes_.index(c)
+    assert np.allclose(S.eigen_object(c).ravel(), S.class_means_[i])
+    moved = S.eigen_object(c, 0, 2.0).ravel() - S.class_means_[i]
+    std = np.sqrt(S.class_variance_ratio_[c][0] * S.class_total_variance_[c])
+    assert np.allclose(moved, 2.0 * std * S.class_components_[c][0], atol=1e-5)
+    assert S.counts_at(0.6) == S.n_components_
+    f = S.fraction_for_dim(S.dim_ + 3)
+    assert sum(S.counts_at(f).values()) + len(CLASSES) >= S.dim_ + 3 > sum(S.counts_at(f - 1e-6).values()) + len(CLASSES)
+
+
+def test_run_gridsets_reads_what_it_wrote(tmp_path, monkeypatch):
+    from hbeo.gridset import run_gridsets
+    monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
+    first = run_gridsets("procedural", "ci", tmp_path, progress=False)
+    assert (tmp_path / "grids_train.npz").exists() and len(first["test"]) == 30
+    again = run_gridsets("procedural", "ci", tmp_path, progress=False)
+    assert np.array_equal(first["train"].grids, again["train"].grids)
