@@ -18,6 +18,25 @@ Grid layout (3D ShapeNets, Wu et al. 2015)
     Surfaces are voxelized and then every cavity closed to the outside is filled;
     open basins (a bathtub's tub, a cup) stay empty, as in the original data.
 
+Camera
+    Pinhole, OpenCV axes: x right, y down, z forward (out of the lens). Pixel (u, v) =
+    (column, row); integer coordinates are pixel centres. Intrinsics (fx, fy, cx, cy) in
+    pixels; default Kinect-like: f = 525 px at 640x480, scaled with the image size.
+    Depth images hold the z coordinate (along the optical axis) of the surface seen at
+    each pixel, in metres; 0 means "no object".
+
+Pose
+    The rotation R (3x3) takes the canonical object frame to the camera frame; with the
+    translation t (metres, camera frame), a point x of the object (metres, origin at the
+    centre of its bounding box) is seen at ``R @ x + t``. Encoded as the paper's 3-element
+    axis-angle vector (rotation vector: axis * angle, radians). Pose errors are geodesic
+    angles in degrees.
+
+Rendering scale
+    Before rendering, a mesh is centred on its bounding-box centre (the grid's centre) and
+    scaled so its longest side is ``object_size`` metres, so grid, mesh and depth share
+    one frame up to that scale.
+
 Grid coordinates
     Continuous grid coordinates ``u`` in [0, 30)^3: voxel (i, j, k) covers
     [i, i+1) x [j, j+1) x [k, k+1); its centre is (i+0.5, j+0.5, k+0.5).
@@ -26,7 +45,10 @@ Grid coordinates
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 #: ModelNet10 class names, in the index order of the 3D ShapeNets / VoxNet grids.
 CLASSES: tuple[str, ...] = (
@@ -88,3 +110,90 @@ def voxel_centers(resolution: int = RESOLUTION) -> np.ndarray:
     """Grid coordinates of all voxel centres, shape (R, R, R, 3), same index order as grids."""
     c = np.arange(resolution) + 0.5
     return np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1)
+
+
+# --------------------------------------------------------------------------- camera
+
+#: Kinect-like reference camera: f = 525 px at 640 x 480.
+KINECT_F, KINECT_SIZE = 525.0, (640, 480)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels, OpenCV convention (integer pixel coordinates are centres)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        if int(self.width) < 1 or int(self.height) < 1:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        vals = (self.fx, self.fy, self.cx, self.cy)
+        if not all(np.isfinite(v) for v in vals) or self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"intrinsics need finite fx, fy > 0 and finite cx, cy; got {vals}")
+
+    @classmethod
+    def kinect(cls, width: int = 320, height: int = 240) -> "Intrinsics":
+        """The default camera: Kinect-like, square pixels with f = 525 px per 640 px of image
+        width (the Kinect's horizontal field of view, 62 degrees), principal point at the centre."""
+        f = KINECT_F * width / KINECT_SIZE[0]
+        return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, int(width), int(height))
+
+    @property
+    def K(self) -> np.ndarray:
+        """The 3x3 camera matrix."""
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    def as_tuple(self) -> tuple:
+        return (self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
+
+def project(points: np.ndarray, K: Intrinsics) -> np.ndarray:
+    """Camera-frame points (N, 3), metres -> pixel coordinates and depth (N, 3): (u, v, z)."""
+    p = np.asarray(points, dtype=np.float64)
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K.fx * p[:, 0] / z + K.cx
+        v = K.fy * p[:, 1] / z + K.cy
+    return np.stack([u, v, z], axis=1)
+
+
+def backproject(depth: np.ndarray, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Depth image (H, W), metres, 0 = none -> (camera-frame points (N, 3), their (row, col) (N, 2)).
+
+    Inverse of :func:`project` at the pixel centres of all pixels with depth > 0.
+    """
+    depth = np.asarray(depth)
+    if depth.shape != (K.height, K.width):
+        raise ValueError(f"depth image is {depth.shape[1]}x{depth.shape[0]}, intrinsics are for "
+                         f"{K.width}x{K.height}")
+    rows, cols = np.nonzero(depth > 0)
+    z = depth[rows, cols].astype(np.float64)
+    x = (cols - K.cx) * z / K.fx
+    y = (rows - K.cy) * z / K.fy
+    return np.stack([x, y, z], axis=1), np.stack([rows, cols], axis=1)
+
+
+# --------------------------------------------------------------------------- pose
+
+def rotation_to_axis_angle(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> axis-angle vectors (..., 3), radians, angle in [0, pi]."""
+    R = np.asarray(R, dtype=np.float64)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def axis_angle_to_rotation(v: np.ndarray) -> np.ndarray:
+    """Axis-angle vectors (..., 3), radians -> rotation matrices (..., 3, 3)."""
+    v = np.asarray(v, dtype=np.float64)
+    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(v.shape[:-1] + (3, 3))
+
+
+def geodesic_deg(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
+    """Angle (degrees) of the rotation taking R1 to R2, for matching batches (..., 3, 3)."""
+    R1, R2 = np.asarray(R1, np.float64), np.asarray(R2, np.float64)
+    tr = np.einsum("...ji,...ji->...", R1, R2)          # trace(R1^T R2)
+    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
