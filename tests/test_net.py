@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+import torch
+
+from hbeo import conventions as C
+from hbeo.net import (HBEONet, LossWeights, NetConfig, axis_angle_to_matrix, hbeo_loss, matrix_to_sixd,
+                      normalize_depth, pose_to_matrix, sixd_to_matrix)
+from hbeo.poses import uniform_so3
+
+
+def test_paper_sized_network_has_about_15m_parameters_and_right_heads():
+    net = HBEONet(NetConfig())
+    assert 14e6 < net.n_params() < 17e6
+    out = net(torch.rand(2, 1, 240, 320))
+    assert out["logits"].shape == (2, 10) and out["pose"].shape == (2, 3) and out["coeffs"].shape == (2, 344)
+    convs = [m for m in net.features if isinstance(m, torch.nn.Conv2d)]
+    assert len(convs) == 4 and all(c.stride == (2, 2) for c in convs)
+    assert not any(isinstance(m, (torch.nn.MaxPool2d, torch.nn.AvgPool2d)) for m in net.modules())
+
+
+def test_rotation_conversions_agree_with_the_conventions_module():
+    R = uniform_so3(50, np.random.default_rng(0))
+    v = torch.tensor(C.rotation_to_axis_angle(R))
+    assert torch.allclose(axis_angle_to_matrix(v), torch.tensor(R), atol=1e-9)
+    Rt = torch.tensor(R)
+    assert torch.allclose(sixd_to_matrix(matrix_to_sixd(Rt)), Rt, atol=1e-9)
+    noisy = matrix_to_sixd(Rt) + 0.1 * torch.randn(50, 6, dtype=torch.float64)
+    M = pose_to_matrix(noisy, "6d")
+    assert torch.allclose(M @ M.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand(50, 3, 3), atol=1e-9)
+    assert torch.allclose(torch.det(M), torch.ones(50, dtype=torch.float64))
+
+
+def test_loss_is_zero_at_the_truth_and_weights_apply():
+    cfg = NetConfig(image_size=(32, 24), n_classes=3, n_coeffs=4, conv_channels=(4, 4, 4, 4), fc=(8, 8, 8))
+    R = torch.tensor(uniform_so3(2, np.random.default_rng(1)), dtype=torch.float32)
+    batch = {"label": torch.tensor([0, 2]), "rotation": R,
+             "axis_angle": torch.tensor(C.rotation_to_axis_angle(R.numpy()), dtype=torch.float32),
+             "coeffs": torch.randn(2, 4)}
+    perfect = {"logits": torch.tensor([[50.0, 0, 0], [0, 0, 50.0]]), "pose": batch["axis_angle"],
+               "coeffs": batch["coeffs"]}
+    total, parts = hbeo_loss(perfect, batch, cfg)
+    assert total.item() < 1e-6
+    off = dict(perfect, coeffs=batch["coeffs"] + 1.0)
+    t1, _ = hbeo_loss(off, batch, cfg, LossWeights(coeffs=1.0))
+    t3, _ = hbeo_loss(off, batch, cfg, LossWeights(coeffs=3.0))
+    assert t1.item() == pytest.approx(2.0, rel=1e-4) and t3.item() == pytest.approx(6.0, rel=1e-4)
+
+
+def test_center_normalization_removes_the_depth_offset():
+    d = torch.zeros(1, 1, 10, 10)
+    d[..., 3:7, 3:7] = 1.5 + 0.01 * torch.arange(4.0)
+    far = torch.where(d > 0, d + 2.0, d)
+    assert torch.allclose(normalize_depth(d, "center"), normalize_depth(far, "center"), atol=1e-6)
+    assert torch.equal(normalize_depth(d, "none"), d)
+    assert (normalize_depth(d, "center")[d == 0] == 0).all()
+
+
+def test_bad_configs():
+    with pytest.raises(ValueError, match="rotation"):
+        NetConfig(rotation="euler")
+    with pytest.raises(ValueError, match="four convolutions"):
+        NetConfig(conv_channels=(8, 8))
