@@ -158,4 +158,4 @@ def hbeo_loss(out: dict, batch: dict, cfg: NetConfig, w: LossWeights | None = No
     pose = (out["pose"] - target).norm(dim=-1).mean()
     coeff = ((out["coeffs"] - batch["coeffs"]) / coeff_scale).norm(dim=-1).mean()
     total = w.classification * ce + w.pose * pose + w.coeffs * coeff
-    return total, {"ce": float(ce), "pose": float(pose), "coeff": float(coeff)}
+    return total, {"ce": ce.item(), "pose": pose.item(), "coeff": coeff.item()}
