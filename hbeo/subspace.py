@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -30,6 +28,7 @@ from scipy.linalg import blas
 from tqdm.auto import tqdm
 
 from . import conventions as C
+from .atomic import atomic_file
 from .errors import DataError
 from .vbpca import VBPCA
 
@@ -253,16 +252,9 @@ class ObjectSubspace:
         ratios = np.concatenate([self.class_variance_ratio_[c] for c in self.classes_])
         spectra = np.concatenate([self.class_spectrum_[c] for c in self.classes_])
         meta["spectrum_sizes"] = [len(self.class_spectrum_[c]) for c in self.classes_]
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios, spectra=spectra,
-                         singular_values=self.singular_values_, meta=np.array(json.dumps(meta)))
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_file(path) as f:
+            np.savez(f, basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios, spectra=spectra,
+                     singular_values=self.singular_values_, meta=np.array(json.dumps(meta)))
         return path
 
     @classmethod

@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import random
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -23,6 +21,7 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
+from .atomic import atomic_file
 from .conventions import geodesic_deg
 from .net import HBEONet, LossWeights, NetConfig, hbeo_loss, pose_to_matrix
 
@@ -99,24 +98,16 @@ def evaluate_batches(net: HBEONet, loader, device, coeff_scale, weights: LossWei
 
 
 def _atomic_save(obj, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_file(path) as f:
+        torch.save(obj, f)
 
 
 def _write_log(history: list[dict], path: Path) -> None:
     """The whole CSV log from the checkpoint's history, written atomically."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    with os.fdopen(fd, "w", newline="") as f:
+    with atomic_file(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(history[0]))
         w.writeheader()
         w.writerows(history)
-    os.replace(tmp, path)
 
 
 def train(net_cfg: NetConfig, train_set, val_set, out_dir, cfg: TrainConfig | None = None,
