@@ -13,7 +13,6 @@ between parts) up to ``close`` voxels wide are bridged before filling.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import trimesh
