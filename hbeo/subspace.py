@@ -239,10 +239,10 @@ class ObjectSubspace:
         return out
 
     # ------------------------------------------------------------ persistence
-    def save(self, path) -> Path:
-        """Write basis, class means and components, settings and data fingerprint (.npz), atomically."""
+    def save(self, path):
+        """Write basis, class means and components, settings and data fingerprint (.npz), atomically;
+        ``path`` may also be an open binary file."""
         self._check()
-        path = Path(path)
         meta = {"format_version": FORMAT_VERSION, "params": self.get_params(), "classes": list(self.classes_),
                 "n_components": self.n_components_, "variance_used": self.variance_used_,
                 "dim": self.dim_, "fingerprint": self.fingerprint_,
@@ -252,15 +252,20 @@ class ObjectSubspace:
         ratios = np.concatenate([self.class_variance_ratio_[c] for c in self.classes_])
         spectra = np.concatenate([self.class_spectrum_[c] for c in self.classes_])
         meta["spectrum_sizes"] = [len(self.class_spectrum_[c]) for c in self.classes_]
+        arrays = dict(basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios, spectra=spectra,
+                      singular_values=self.singular_values_, meta=np.array(json.dumps(meta)))
+        if hasattr(path, "write"):
+            np.savez(path, **arrays)
+            return path
         with atomic_file(path) as f:
-            np.savez(f, basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios, spectra=spectra,
-                     singular_values=self.singular_values_, meta=np.array(json.dumps(meta)))
-        return path
+            np.savez(f, **arrays)
+        return Path(path)
 
     @classmethod
     def load(cls, path) -> "ObjectSubspace":
-        """Read a file written by :meth:`save` (DataError naming the file if it is not one)."""
-        path = Path(path)
+        """Read a file (path or open binary file) written by :meth:`save` (DataError naming the
+        file if it is not one)."""
+        path = path if hasattr(path, "read") else Path(path)
         try:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(str(z["meta"]))

@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+import torch
+
+from hbeo import datasets
+from hbeo.conventions import Intrinsics
+from hbeo.errors import DataError
+from hbeo.gridset import build_gridset
+from hbeo.model import HBEO
+from hbeo.net import HBEONet, NetConfig
+from hbeo.subspace import ObjectSubspace
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    ds = datasets.ProceduralDataset(n_train=6, n_test=0, seed=1, classes=("chair", "table"))
+    gs = build_gridset(ds, ds.records("train"), "train", cache=tmp_path_factory.mktemp("c"), progress=False)
+    sub = ObjectSubspace(variance=0.6).fit(gs.grids, gs.labels, gs.classes, progress=False)
+    torch.manual_seed(0)
+    K = Intrinsics.kinect(32, 24)
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
+                            fc=(8, 8, 8)))
+    with torch.no_grad():                      # make the mean-shape coefficient come out non-empty
+        net.coeff_head.bias.copy_(torch.from_numpy(sub.project(gs.grids).mean(0)))
+    return HBEO(net, sub, K, gs.classes, {"ref_distance": 1.7})
+
+
+def blob_depth(K, z=1.7):
+    d = np.zeros((K.height, K.width))
+    d[K.height // 3: 2 * K.height // 3, K.width // 3: 2 * K.width // 3] = z
+    return d
+
+
+def test_predict_shapes_and_frames(model):
+    K_user = Intrinsics(500.0, 500.0, 300.0, 220.0, 640, 480)
+    p = model.predict(np.stack([blob_depth(K_user), blob_depth(K_user, 2.5)]), K_user)
+    assert p.probabilities.shape == (2, 2) and np.allclose(p.probabilities.sum(1), 1)
+    assert p.rotation.shape == (2, 3, 3) and np.allclose(p.rotation @ p.rotation.transpose(0, 2, 1), np.eye(3), atol=1e-6)
+    assert p.grids.shape == (2, 30, 30, 30) and p.grids.dtype == bool
+    assert p.translation[1, 2] > p.translation[0, 2] and p.scale[1] > p.scale[0]
+    d = p.to_dict(0)
+    assert set(d) >= {"class", "probabilities", "rotation", "axis_angle", "coeffs", "timing_ms"}
+    assert p.timing_ms["total"] > 0
+
+
+def test_save_load_round_trip(model, tmp_path):
+    path = model.save(tmp_path / "m.hbeo")
+    back = HBEO.load(path)
+    K = Intrinsics.kinect(64, 48)
+    a, b = model.predict(blob_depth(K), K), back.predict(blob_depth(K), K)
+    assert np.allclose(a.probabilities, b.probabilities) and np.array_equal(a.grids, b.grids)
+    assert back.classes == model.classes and back.settings["ref_distance"] == 1.7
+
+
+def test_bad_model_files(tmp_path):
+    with pytest.raises(DataError, match="no such model file"):
+        HBEO.load(tmp_path / "none.hbeo")
+    (tmp_path / "junk.hbeo").write_bytes(b"junk")
+    with pytest.raises(DataError, match=r"junk\.hbeo: not a readable hbeo model file"):
+        HBEO.load(tmp_path / "junk.hbeo")
+    torch.save({"format_version": 99}, tmp_path / "new.hbeo")
+    with pytest.raises(DataError, match="model format 99"):
+        HBEO.load(tmp_path / "new.hbeo")
+
+
+def test_mismatched_parts_are_refused(model):
+    with pytest.raises(ValueError, match="coefficients"):
+        HBEO(HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=3, conv_channels=(4, 4, 4, 4),
+                               fc=(8, 8, 8))), model.subspace, model.intrinsics, model.classes)
