@@ -197,3 +197,10 @@ def geodesic_deg(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
     R1, R2 = np.asarray(R1, np.float64), np.asarray(R2, np.float64)
     tr = np.einsum("...ji,...ji->...", R1, R2)          # trace(R1^T R2)
     return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
+
+
+#: Near-symmetries of the classes: order n of turns by 360/n degrees about the object's up
+#: axis (+z) that leave the class's typical shape nearly unchanged (tables: 90 degrees; desks,
+#: dressers, night stands, bathtubs: 180). Used for the symmetry-aware pose error only; the
+#: paper's metric is the raw geodesic error.
+UP_SYMMETRY: dict[str, int] = {"bathtub": 2, "desk": 2, "dresser": 2, "night_stand": 2, "table": 4}

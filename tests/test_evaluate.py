@@ -1,0 +1,32 @@
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hbeo.evaluate import summarize, symmetric_pose_error
+from hbeo.poses import uniform_so3
+
+
+def test_symmetric_pose_error_forgives_only_the_class_turns():
+    R = uniform_so3(20, np.random.default_rng(0))
+    half = Rotation.from_euler("z", 180, degrees=True).as_matrix()
+    quarter = Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    assert np.allclose(symmetric_pose_error(R @ half, R, 2), 0, atol=1e-5)
+    assert np.allclose(symmetric_pose_error(R @ half, R, 1), 180, atol=1e-4)
+    assert np.allclose(symmetric_pose_error(R @ quarter, R, 4), 0, atol=1e-5)
+    assert np.allclose(symmetric_pose_error(R @ quarter, R, 2), 90, atol=1e-4)
+    tilt = Rotation.from_euler("x", 30, degrees=True).as_matrix()
+    assert np.allclose(symmetric_pose_error(R @ tilt, R, 4), 30, atol=1e-4)   # not an up-axis turn
+
+
+def test_summary_keys_and_values():
+    g = np.zeros((30, 30, 30), bool)
+    g[10:20, 10:20, 10:20] = True
+    R = np.eye(3)
+    flip = Rotation.from_euler("z", 180, degrees=True).as_matrix()
+    rows = [{"class": "table", "pred": "table", "R_true": R, "R_pred": flip, "grid": g, "truth": g, "ms": 2.0},
+            {"class": "chair", "pred": "table", "R_true": R, "R_pred": R, "grid": g, "truth": g, "ms": 4.0}]
+    m = summarize(rows, ("chair", "table"), "procedural", "test", 1, 0, "so3", False, 2)
+    assert m["accuracy"] == 0.5 and m["n_queries"] == 2
+    assert m["pose_error_deg"]["mean"] == 90 and m["pose_error_deg"]["mean_sym"] == 0
+    assert m["completion"]["iou"] == 1.0 and m["runtime_ms"]["mean_per_query"] == 3.0
+    assert m["per_class"]["table"]["pose_median_deg"] == 180 and m["per_class"]["table"]["pose_median_sym_deg"] == 0
+    assert m["confusion"] == [[0, 1], [0, 1]]
