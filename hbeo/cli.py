@@ -98,6 +98,33 @@ def cmd_subspace(args) -> int:
     return 0
 
 
+def cmd_render(args) -> int:
+    from . import config, datasets
+    from .renderset import RenderSettings, render_set
+    from .subspace import ObjectSubspace
+    prof = config.get_profile(args.profile)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ds = datasets.get_dataset(args.dataset, profile=prof)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    out = config.run_dir(prof.name, args.dataset, args.out)
+    sub_path = Path(args.subspace) if args.subspace else out / "subspace.npz"
+    subspace = ObjectSubspace.load(sub_path) if (args.subspace or sub_path.exists()) else None
+    settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler,
+                                           noise=args.noise, backend=args.backend, seed=args.seed)
+    splits = ("train", "test") if args.split == "both" else (args.split,)
+    for split in splits:
+        recs = datasets.select(ds, split, prof)
+        m = render_set(ds, recs, split, out / f"render_{split}", settings, subspace=subspace,
+                       workers=args.workers or prof.workers, objects_per_shard=args.objects_per_shard,
+                       progress=not args.quiet)
+        rate = (f"{m.images_per_s:.1f} images/s" if m.images_per_s else "already rendered, 0 new images")
+        coeffs = f", coeffs k={m.coeffs_dim}" if m.coeffs_dim else ""
+        print(f"{split}: {m.n_images} images of {len(recs)} objects{coeffs} -> {m.root}  ({rate})")
+    return 0
+
+
 def cmd_reproduce(args) -> int:
     from .reproduce import run_notebooks
     run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out,
@@ -131,6 +158,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--known", type=float, default=0.5, help="fraction of voxels known in the partial test (0.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random mask")
     p.set_defaults(func=cmd_subspace)
+    p = sub.add_parser("render", help="render segmented depth images with pose/class/shape labels (resumable)")
+    _dataset_arg(p)
+    p.add_argument("--out", help="output folder; sets go to OUT/render_SPLIT (default: results/PROFILE/DATASET)")
+    p.add_argument("--split", choices=("train", "test", "both"), default="train", help="split(s) to render (train)")
+    p.add_argument("--views", type=int, help="views per object (default: the profile's)")
+    p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
+                   help="so3: uniform rotations (the paper's 3-DOF setting); upright: yaw and elevation")
+    p.add_argument("--noise", action="store_true", help="apply the Kinect-like sensor noise model")
+    p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
+    p.add_argument("--backend", choices=("auto", "pyrender", "embree"), default="auto", help="renderer (auto)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the viewpoints and noise (0)")
+    p.add_argument("--subspace", help="subspace.npz for shape coefficients (default: OUT/subspace.npz if present)")
+    p.add_argument("--objects-per-shard", type=int, default=None,
+                   help="objects per shard file (default: about 1024 images per shard)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_render)
     p = sub.add_parser("reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")

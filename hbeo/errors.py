@@ -17,6 +17,9 @@ class DataError(HBEOError, ValueError):
         where = f"{self.path}: " if self.path else ""
         super().__init__(f"{where}{problem}")
 
+    def __reduce__(self):   # picklable across worker processes
+        return (type(self), (self.path, self.problem))
+
 
 class MissingDataError(HBEOError, FileNotFoundError):
     """A dataset or file that is not where the settings say; the message says how to get it."""
