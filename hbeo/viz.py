@@ -105,4 +105,31 @@ def eigen_gallery(subspace, classes=None, modes: int = 2, sigmas: float = 2.0, *
     return gallery(grids, titles, ncols=1 + 2 * modes, **kw)
 
 
+def show_depth(ax, depth, title: str | None = None, vmax: float | None = None):
+    """Draw a depth image (H, W), metres, on a matplotlib axis: near = bright, no object = white."""
+    d = np.ma.masked_less_equal(np.asarray(depth, dtype=np.float32), 0)
+    ax.imshow(d, cmap="viridis_r", vmin=d.min() if d.count() else 0, vmax=vmax or (d.max() if d.count() else 1))
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title, fontsize=8)
+
+
+def depth_and_grid_gallery(items, size: int = 120, panel: float = 1.7):
+    """Figure with pairs (depth image, its object's grid): ``items`` = [(depth, grid, title), ...]."""
+    import matplotlib.pyplot as plt
+    n = len(items)
+    ncols = 4
+    nrows = max(1, int(np.ceil(n / 2)))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(panel * ncols, panel * nrows + 0.3), squeeze=False)
+    for ax in axes.ravel():
+        ax.set_axis_off()
+    for i, (depth, grid, title) in enumerate(items):
+        a, b = axes[i // 2, 2 * (i % 2)], axes[i // 2, 2 * (i % 2) + 1]
+        show_depth(a, depth, title)
+        b.imshow(render_voxels(grid, size=size))
+        b.set_title("grid (canonical frame)", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 assert C.RESOLUTION == 30  # the renderer's defaults assume the standard grid size
