@@ -34,6 +34,9 @@ class Profile:
     epochs: int                     #: HBEONet training epochs
     batch_size: int
     workers: int                    #: worker processes for voxelization and rendering
+    conv_channels: tuple[int, int, int, int] = (32, 64, 128, 128)   #: HBEONet's four convolutions
+    fc: tuple[int, int, int] = (384, 256, 256)                       #: HBEONet's shared FC layers
+    lr: float = 1e-3                #: peak learning rate (AdamW)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -41,11 +44,13 @@ class Profile:
 
 PROFILES: dict[str, Profile] = {
     "ci": Profile("ci", n_train_per_class=6, n_test_per_class=3, views_per_object=2,
-                  image_size=(80, 60), epochs=1, batch_size=16, workers=1),
+                  image_size=(80, 60), epochs=1, batch_size=16, workers=1,
+                  conv_channels=(8, 16, 16, 16), fc=(64, 64, 64)),
     "cpu": Profile("cpu", n_train_per_class=60, n_test_per_class=20, views_per_object=24,
-                   image_size=(160, 120), epochs=15, batch_size=64, workers=2),
+                   image_size=(160, 120), epochs=15, batch_size=64, workers=2,
+                   conv_channels=(16, 32, 64, 64), fc=(256, 256, 256)),
     "full": Profile("full", n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
-                    image_size=(320, 240), epochs=40, batch_size=128, workers=8),
+                    image_size=(320, 240), epochs=40, batch_size=128, workers=8),   # the paper's network
 }
 
 #: Procedural objects per class when a profile says "all" (the procedural source is unbounded).

@@ -489,7 +489,8 @@ class Manifest:
                 f"{len(self.data['object_ids'])} objects in {len(self.shards)} shards, {self.root}>")
 
 
-def _subspace_info(subspace) -> dict | None:
+def subspace_info(subspace) -> dict | None:
+    """What a manifest records of the subspace its coefficients come from (None without one)."""
     if subspace is None:
         return None
     basis = np.ascontiguousarray(subspace.basis_)
@@ -503,7 +504,7 @@ def _identity(dataset, records, split, settings, subspace, objects_per_shard, no
     return {"format_version": FORMAT_VERSION, "dataset": dataset.name,
             "dataset_fingerprint": dataset.fingerprint(), "split": split, "n_objects": len(records),
             "objects_sha256": h, "objects_per_shard": int(objects_per_shard),
-            "settings": settings.to_dict(), "noise_model": noise, "subspace": _subspace_info(subspace)}
+            "settings": settings.to_dict(), "noise_model": noise, "subspace": subspace_info(subspace)}
 
 
 def _check_same(path: Path, old: dict, new: dict) -> None:
