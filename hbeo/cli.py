@@ -5,6 +5,7 @@ Bad input exits with status 2 and one line naming the file and the problem.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -22,8 +23,18 @@ def _dataset_arg(p, profile="cpu"):
                    help=f"ci | cpu | full: objects per class and run sizes (default: {profile})")
 
 
-def cmd_data(args) -> int:
+def _load_dataset(name: str, prof, **kw):
+    """get_dataset with its warnings (e.g. skipped empty grids) printed to stderr as one line each."""
     from . import datasets
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ds = datasets.get_dataset(name, profile=prof, **kw)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    return ds
+
+
+def cmd_data(args) -> int:
     if args.download:
         if args.dataset != "modelnet10":
             raise HBEOError("--download applies to --dataset modelnet10 only")
@@ -32,13 +43,10 @@ def cmd_data(args) -> int:
         root = fetch_modelnet10(Path(args.root) if args.root else config.data_dir())
         print(f"ModelNet10 ready in {root}")
     kw = {"root": args.root} if (args.dataset == "modelnet10" and args.root) else {}
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        ds = datasets.get_dataset(args.dataset, profile=args.profile, **kw)
-    for w in caught:
-        print(f"warning: {w.message}", file=sys.stderr)
+    ds = _load_dataset(args.dataset, args.profile, **kw)
     if args.summary or not args.download:
-        print(f"dataset {ds.name}: {len(ds)} objects, {len(ds.classes)} classes")
+        n_listed = int(ds.summary().loc["total", "total"])
+        print(f"dataset {ds.name}: {n_listed} objects listed, {len(ds)} usable, {len(ds.classes)} classes")
         print(ds.summary().to_string())
     return 0
 
@@ -58,17 +66,12 @@ def cmd_voxelize(args) -> int:
 
 
 def cmd_subspace(args) -> int:
-    import json
     import pandas as pd
     from . import completion, config, datasets
     from .gridset import build_gridset
     from .subspace import ObjectSubspace
     prof = config.get_profile(args.profile)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        ds = datasets.get_dataset(args.dataset, profile=prof)
-    for w in caught:
-        print(f"warning: {w.message}", file=sys.stderr)
+    ds = _load_dataset(args.dataset, prof)
     out = config.run_dir(prof.name, args.dataset, args.out)
     sets = {s: build_gridset(ds, datasets.select(ds, s, prof), s, workers=prof.workers) for s in ("train", "test")}
     if args.components is not None:
@@ -103,11 +106,7 @@ def cmd_render(args) -> int:
     from .renderset import RenderSettings, render_set
     from .subspace import ObjectSubspace
     prof = config.get_profile(args.profile)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        ds = datasets.get_dataset(args.dataset, profile=prof)
-    for w in caught:
-        print(f"warning: {w.message}", file=sys.stderr)
+    ds = _load_dataset(args.dataset, prof)
     out = config.run_dir(prof.name, args.dataset, args.out)
     sub_path = Path(args.subspace) if args.subspace else out / "subspace.npz"
     subspace = ObjectSubspace.load(sub_path) if (args.subspace or sub_path.exists()) else None
@@ -122,6 +121,63 @@ def cmd_render(args) -> int:
         rate = (f"{m.images_per_s:.1f} images/s" if m.images_per_s else "already rendered, 0 new images")
         coeffs = f", coeffs k={m.coeffs_dim}" if m.coeffs_dim else ""
         print(f"{split}: {m.n_images} images of {len(recs)} objects{coeffs} -> {m.root}  ({rate})")
+    return 0
+
+
+def cmd_train(args) -> int:
+    from . import config
+    from .fit import ViewOptions, fit_model
+    from .pipeline import ensure_render
+    prof = config.get_profile(args.profile)
+    _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
+    run = config.run_dir(prof.name, args.dataset, args.out)
+    ensure_render(args.dataset, prof, run, "train", progress=not args.quiet)
+    view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
+    model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
+                            view=view, seed=args.seed, out_name=args.name, progress=not args.quiet)
+    print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
+          f"{model.subspace.dim_} coefficients)")
+    return 0
+
+
+def _write_json(path, obj) -> None:
+    import json
+    from .atomic import atomic_file
+    with atomic_file(path, "w") as f:
+        json.dump(obj, f, indent=2)
+
+
+def cmd_predict(args) -> int:
+    from .atomic import atomic_file
+    from .depthio import parse_intrinsics, read_depth, read_mask
+    from .model import HBEO
+    depth = read_depth(args.depth, args.depth_scale)
+    K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
+    mask = read_mask(args.mask, depth.shape) if args.mask else None
+    model = HBEO.load(args.model)
+    pred = model.predict(depth, K, mask)
+    mesh = model.to_mesh(pred) if args.mesh else None     # fails before anything is written
+    result = {"model": str(args.model), "depth": str(args.depth), **pred.to_dict(0)}
+    if mesh is not None:
+        with atomic_file(args.mesh) as f:
+            mesh.export(f, file_type=Path(args.mesh).suffix.lstrip(".").lower() or "ply")
+        result["mesh"] = str(args.mesh)
+    _write_json(args.out, result)
+    print(f"{result['class']} (p={max(result['probabilities']):.2f}), axis-angle {result['axis_angle']} -> {args.out}")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from .evaluate import evaluate_model
+    from .model import HBEO
+    model = HBEO.load(args.model)
+    ds = _load_dataset(args.dataset, model.settings.get("profile", "cpu"))
+    metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
+                             noise=args.noise, per_class=args.per_class, progress=not args.quiet)
+    metrics["model"] = str(args.model)
+    _write_json(args.out, metrics)
+    short = {k: metrics[k] for k in ("accuracy", "pose_error_deg", "completion", "runtime_ms")}
+    print(json.dumps(short, indent=2))
     return 0
 
 
@@ -174,6 +230,41 @@ def build_parser() -> argparse.ArgumentParser:
                    help="objects per shard file (default: about 1024 images per shard)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
+    p = sub.add_parser("train", help="train HBEONet (builds grids, subspace and renderings if missing)")
+    _dataset_arg(p)
+    p.add_argument("--out", help="run folder (default: results/PROFILE/DATASET)")
+    p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
+    p.add_argument("--rotation", choices=("axis_angle", "6d"), default="axis_angle",
+                   help="pose output: the paper's axis-angle (default) or the continuous 6-D representation")
+    p.add_argument("--normalize", choices=("none", "center"), default="none",
+                   help="depth input: metres as rendered (paper, default) or centred on the object's median depth")
+    p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
+    p.add_argument("--ref-distance", type=float, help="distance-insensitive input: zoom to this object distance (m)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--name", default="model.hbeo", help="model file name in the run folder (model.hbeo)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_train)
+    p = sub.add_parser("predict", help="class, pose and completed shape from one depth image")
+    p.add_argument("--model", required=True, help="model file (model.hbeo)")
+    p.add_argument("--depth", required=True, help="depth image: 16-bit PNG in mm, or float .npy/.tiff in m")
+    p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels")
+    p.add_argument("--mask", help="object mask image (non-zero = object), same size as the depth")
+    p.add_argument("--depth-scale", type=float, help="metres per stored unit (default 0.001 for integer images)")
+    p.add_argument("--out", required=True, help="result JSON")
+    p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
+    p.set_defaults(func=cmd_predict)
+    p = sub.add_parser("evaluate", help="render a dataset's views, predict and write the metrics JSON")
+    p.add_argument("--model", required=True)
+    p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")
+    p.add_argument("--split", choices=("train", "test"), default="test")
+    p.add_argument("--views", type=int, default=1, help="views per object (1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sampler", choices=("so3", "upright"), help="viewpoints (default: the model's training sampler)")
+    p.add_argument("--noise", action="store_true", help="apply Kinect-like sensor noise")
+    p.add_argument("--per-class", type=int, help="at most this many objects per class")
+    p.add_argument("--out", required=True, help="metrics JSON (keys: see hbeo/evaluate.py)")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_evaluate)
     p = sub.add_parser("reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")

@@ -67,3 +67,12 @@ def test_mismatched_parts_are_refused(model):
     with pytest.raises(ValueError, match="coefficients"):
         HBEO(HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=3, conv_channels=(4, 4, 4, 4),
                                fc=(8, 8, 8))), model.subspace, model.intrinsics, model.classes)
+
+
+def test_to_mesh_places_the_completed_shape_in_the_camera_frame(model):
+    K = Intrinsics.kinect(64, 48)
+    p = model.predict(blob_depth(K, 1.8), K)
+    assert p.grids[0].any()
+    mesh = model.to_mesh(p)
+    assert np.allclose(mesh.bounds.mean(0), p.translation[0], atol=0.35 * p.scale[0])
+    assert mesh.extents.max() <= 1.2 * model.settings["object_size"] * p.scale[0]
