@@ -43,8 +43,8 @@ class Profile:
 
 
 PROFILES: dict[str, Profile] = {
-    "ci": Profile("ci", n_train_per_class=6, n_test_per_class=3, views_per_object=2,
-                  image_size=(80, 60), epochs=1, batch_size=16, workers=1,
+    "ci": Profile("ci", n_train_per_class=6, n_test_per_class=3, views_per_object=8,
+                  image_size=(80, 60), epochs=8, batch_size=32, workers=1,
                   conv_channels=(8, 16, 16, 16), fc=(64, 64, 64)),
     "cpu": Profile("cpu", n_train_per_class=60, n_test_per_class=20, views_per_object=24,
                    image_size=(160, 120), epochs=15, batch_size=64, workers=2,

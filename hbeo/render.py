@@ -19,9 +19,11 @@ Backends
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,7 +120,8 @@ def grid_mesh(grid: np.ndarray, object_size: float = 1.0, smooth: float = 1.0) -
     u = verts.astype(np.float64) - 1.0 + 0.5             # padded index -> grid coordinate
     span = res * C.OBJECT_VOXELS / C.RESOLUTION          # voxels spanned by object_size
     x = (u - res / 2.0) / span * size
-    return trimesh.Trimesh(x, faces.astype(np.int64), process=False, validate=False,
+    # marching_cubes winds its triangles inward for a field that is high inside: flip them
+    return trimesh.Trimesh(x, faces[:, ::-1].astype(np.int64), process=False, validate=False,
                            metadata={"name": "grid_mesh", "object_size": size})
 
 
@@ -147,7 +150,7 @@ def embree_available() -> bool:
         import embreex  # noqa: F401
         from embreex import rtcore_scene  # noqa: F401
         return True
-    except Exception:
+    except (ImportError, OSError):
         return False
 
 
@@ -206,7 +209,7 @@ def _egl_works() -> bool:
             return True
         finally:
             lib.eglTerminate(dpy)
-    except Exception:
+    except (AttributeError, OSError, TypeError, ValueError, ctypes.ArgumentError):
         return False
 
 
@@ -219,7 +222,7 @@ def gl_platform() -> str:
         raise ValueError(f"HBEO_GL_PLATFORM={want!r}; expected one of {', '.join(GL_PLATFORMS)}")
     current = os.environ.get("PYOPENGL_PLATFORM", "").strip().lower()
     if want:
-        if current and current != want and "OpenGL.GL" in __import__("sys").modules:
+        if current and current != want and "OpenGL.GL" in sys.modules:
             raise RuntimeError(f"OpenGL was already loaded with PYOPENGL_PLATFORM={current}; "
                                f"HBEO_GL_PLATFORM={want} must be set before anything imports OpenGL")
         plat = want
@@ -257,17 +260,27 @@ class _MeshInfo:
             raise DataError(name, "vertex coordinates contain NaN or infinity")
         if f.min() < 0 or f.max() >= len(v):
             raise DataError(name, "face indices out of range of the vertex list")
-        used = v[np.unique(f)]
+        mask = np.zeros(len(v), dtype=bool)
+        mask[f.ravel()] = True
+        used = v[mask]
         lo, hi = used.min(axis=0), used.max(axis=0)
         self.center = (lo + hi) / 2.0
         self.radius = float(np.sqrt(((used - self.center) ** 2).sum(axis=1).max()))
-        try:                                            # points whose projection bounds the image
-            from scipy.spatial import ConvexHull
-            self.hull = used[ConvexHull(used).vertices]
-        except Exception:                               # flat or tiny meshes
-            self.hull = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                  for z in (lo[2], hi[2])])
-        self.vertices, self.faces = v, f
+        # points whose projection bounds the object's image: the bbox corners, then (once the
+        # mesh has been rendered often enough to pay for it) the convex hull's vertices
+        self.used = used
+        self.corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                 for z in (lo[2], hi[2])])
+        self.hull = None
+        self.views = 0
+        # zero-area faces show nothing, but a rasterizer snapping one onto a pixel centre writes
+        # a depth extrapolated from its (undefined) plane: leave them out
+        a = v[f[:, 0]]
+        b, c = v[f[:, 1]] - a, v[f[:, 2]] - a
+        area2 = ((b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) ** 2 + (b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]) ** 2
+                 + (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]) ** 2)        # (2 * area)^2, no np.cross (slow)
+        keep = area2 > 1e-24 * max(self.radius, 1e-300) ** 4
+        self.vertices, self.faces = v, (f[keep] if keep.any() else f)
         self.handle = None
 
 
@@ -292,6 +305,30 @@ def _check_poses(Rs, ts):
     return Rs, ts
 
 
+def _delete_offscreen(offscreen):
+    """Free a pyrender OffscreenRenderer. With EGL, pyrender's own ``delete`` calls eglTerminate
+    on the device's display, which every context in the process shares: it would break the
+    other renderers. Destroy only this context and leave the display initialized."""
+    plat = getattr(offscreen, "_platform", None)
+    if plat is None or not hasattr(plat, "_egl_context"):
+        offscreen.delete()
+        return
+    try:
+        plat.make_current()
+        offscreen._renderer.delete()
+    finally:
+        from OpenGL.EGL import (
+            EGL_NO_CONTEXT,
+            EGL_NO_SURFACE,
+            eglDestroyContext,
+            eglMakeCurrent,
+        )
+        if plat._egl_display is not None and plat._egl_context is not None:
+            eglMakeCurrent(plat._egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
+            eglDestroyContext(plat._egl_display, plat._egl_context)
+        plat._egl_context = plat._egl_display = None
+
+
 class Renderer:
     """Depth renderer for one camera. ``Renderer(intrinsics, backend="auto")``.
 
@@ -303,6 +340,7 @@ class Renderer:
 
     #: objects must lie entirely beyond this depth (metres)
     znear = 0.01
+    _HULL_AFTER = 32   # views of one mesh after which a convex hull tightens the ray box
 
     def __init__(self, intrinsics: C.Intrinsics, backend: str = "auto"):
         if not isinstance(intrinsics, C.Intrinsics):
@@ -333,19 +371,15 @@ class Renderer:
         self.close()
 
     def __del__(self):
-        try:
+        with contextlib.suppress(Exception):     # interpreter shutdown: OpenGL may be gone
             self.close()
-        except Exception:
-            pass
 
     def close(self):
         """Free backend resources (the OpenGL context); the renderer can still be used after."""
         gl = getattr(self, "_gl", None)
         if gl is not None:
-            try:
-                gl[0].delete()
-            finally:
-                self._gl = None
+            self._gl = None
+            _delete_offscreen(gl[0])
         if getattr(self, "_info", None) is not None:
             self._info.handle = None
         self._mesh = self._mesh_key = self._info = None
@@ -397,7 +431,14 @@ class Renderer:
     def _pixel_box(self, info, R, t):
         """Rows/columns (v0, v1, u0, u1) of the image rectangle that can contain the object."""
         K = self.intrinsics
-        uvz = C.project(info.hull @ R.T + t, K)
+        info.views += 1
+        if info.hull is None and info.views > self._HULL_AFTER:
+            from scipy.spatial import ConvexHull, QhullError
+            try:
+                info.hull = info.used[ConvexHull(info.used).vertices]
+            except (QhullError, ValueError):            # flat or tiny meshes: keep the corners
+                info.hull = info.corners
+        uvz = C.project((info.corners if info.hull is None else info.hull) @ R.T + t, K)
         u0 = max(0, int(np.floor(uvz[:, 0].min())))
         u1 = min(K.width, int(np.ceil(uvz[:, 0].max())) + 1)
         v0 = max(0, int(np.floor(uvz[:, 1].min())))

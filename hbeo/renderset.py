@@ -367,9 +367,23 @@ def load_shard(path) -> dict:
 _WORKER: _ObjectRenderer | None = None
 
 
+def _die_with_parent() -> None:
+    """Linux: have the kernel kill this worker when its parent dies (a killed job leaves no
+    orphans that go on writing shards)."""
+    import ctypes
+    import signal
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _init_worker(settings, subspace):
     global _WORKER
+    _die_with_parent()
     torch.set_num_threads(1)
+    from threadpoolctl import threadpool_limits
+    threadpool_limits(1)           # idle OpenBLAS threads halve the speed of parallel workers
     _WORKER = _ObjectRenderer(settings, subspace)
 
 
@@ -383,6 +397,14 @@ def _render_shard(ctx: _ObjectRenderer, path: Path, items, split: str) -> dict:
     digest, size = _write_npz(path, arrays)
     _atomic_text(_sidecar(path), f"{digest}  {path.name}\n")
     return {"sha256": digest, "bytes": size, "n_images": n, "backend": ctx.backend}
+
+
+def _clean_context():
+    """Worker processes that start clean (spawned children): forking a process whose renderer or
+    torch threads are running can deadlock the child, and a spawned worker is a direct child, so
+    it dies with this process (see :func:`_die_with_parent`)."""
+    import multiprocessing
+    return multiprocessing.get_context("spawn")
 
 
 def _shard_job(args):
@@ -598,9 +620,11 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     backends = set()
     t0 = time.perf_counter()
     try:
-        if workers > 1 and len(todo) > 1:
+        if todo:
+            # always in child processes, even for one worker: embree's thread pool would otherwise
+            # stay in this process and slow any torch work after it (100x seen on 2 cores)
             with ProcessPoolExecutor(max_workers=min(workers, len(todo)), initializer=_init_worker,
-                                     initargs=(settings, subspace)) as pool:
+                                     initargs=(settings, subspace), mp_context=_clean_context()) as pool:
                 futures = {pool.submit(_shard_job, (paths[k], chunks[k], split)): k for k in todo}
                 pending = set(futures)
                 try:
@@ -615,16 +639,6 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
                     for f in pending:
                         f.cancel()
                     raise
-        elif todo:
-            ctx = _ObjectRenderer(settings, subspace)
-            try:
-                for k in todo:
-                    res = _render_shard(ctx, paths[k], chunks[k], split)
-                    backends.add(res.pop("backend"))
-                    info[k] = res
-                    bar.update(res["n_images"])
-            finally:
-                ctx.close()
     finally:
         bar.close()
     seconds = time.perf_counter() - t0
