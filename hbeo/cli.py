@@ -31,6 +31,8 @@ def _load_dataset(name: str, prof, **kw):
         ds = datasets.get_dataset(name, profile=prof, **kw)
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
+    # said once: later loads of the same dataset in this command stay quiet about it
+    warnings.filterwarnings("ignore", message=r".*skipped \d+ empty grids")
     return ds
 
 
