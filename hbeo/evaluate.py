@@ -58,10 +58,11 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     vs, sensor = rs.view_sampler, SensorNoise() if noise else None
     rows = []
     bar = tqdm(total=len(records), desc=f"evaluate {dataset.name}/{split}", disable=not progress)
-    with Renderer(K, rs.backend) as renderer:
-        for start in range(0, len(records), chunk):
-            # render a chunk first, then predict it: runtimes are not disturbed by the renderer's threads
-            batch = []
+    for start in range(0, len(records), chunk):
+        # render a chunk with the renderer closed afterwards, then predict it: the renderer's
+        # threads would otherwise compete with the network's and distort the runtimes
+        batch = []
+        with Renderer(K, rs.backend) as renderer:
             for i in range(start, min(start + chunk, len(records))):
                 rec = records[i]
                 rng = np.random.default_rng([seed, 7, i])
@@ -70,17 +71,16 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                 if sensor is not None:
                     depth = sensor.apply(depth, K, rng)
                 batch.append((rec, Rs, depth, record_grid(rec)))
-            if start == 0:             # one untimed call: first-call set-up is not a per-query cost
-                model.predict(batch[0][2][0], K)
-            for rec, Rs, depth, truth in batch:
-                for v in range(views):
-                    if not (depth[v] > 0).any():
-                        continue      # nothing visible (cannot happen with sane settings; never scored as 0)
-                    p = model.predict(depth[v], K)
-                    rows.append({"class": rec.cls, "pred": p.class_names[0], "R_true": Rs[v],
-                                 "R_pred": p.rotation[0], "grid": p.grids[0], "truth": truth,
-                                 "ms": p.timing_ms["total"]})
-                bar.update(1)
+        if start == 0:                 # one untimed call: first-call set-up is not a per-query cost
+            model.predict(batch[0][2][0], K)
+        for rec, Rs, depth, truth in batch:
+            for v in range(views):
+                if not (depth[v] > 0).any():
+                    continue          # nothing visible (cannot happen with sane settings; never scored as 0)
+                p = model.predict(depth[v], K)
+                rows.append({"class": rec.cls, "pred": p.class_names[0], "R_true": Rs[v], "R_pred": p.rotation[0],
+                             "grid": p.grids[0], "truth": truth, "ms": p.timing_ms["total"]})
+            bar.update(1)
     bar.close()
     return summarize(rows, model.classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
 

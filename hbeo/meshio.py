@@ -124,6 +124,24 @@ def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
     return verts, faces
 
 
+def check_mesh(vertices, faces, name=None) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (vertices (V, 3) float64, faces (F, 3) int64) of a mesh; :class:`DataError`
+    naming ``name`` (its file or id) if it is empty, non-finite, out of range or degenerate."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1:] != (3,) or len(v) == 0:
+        raise DataError(name, f"empty mesh: no vertices (shape {v.shape})")
+    if f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0:
+        raise DataError(name, "empty mesh: no triangle faces")
+    if not np.isfinite(v).all():
+        raise DataError(name, "vertex coordinates contain NaN or infinity")
+    if f.min() < 0 or f.max() >= len(v):
+        raise DataError(name, "face indices out of range of the vertex list")
+    if np.ptp(v, axis=0).max() <= 0:
+        raise DataError(name, "degenerate mesh: all vertices coincide")
+    return v, f
+
+
 def read_mesh(path) -> trimesh.Trimesh:
     """Read a mesh file (.off, .obj, .ply, .stl) -> Trimesh (process=False, unused vertices kept).
 

@@ -31,6 +31,7 @@ import trimesh
 
 from . import conventions as C
 from .errors import DataError
+from .meshio import check_mesh
 
 BACKENDS = ("embree", "pyrender")
 GL_PLATFORMS = ("egl", "osmesa")
@@ -59,20 +60,8 @@ def prepare_mesh(mesh: trimesh.Trimesh, object_size: float = 1.0) -> trimesh.Tri
     """
     size = _check_size(object_size)
     name = _mesh_name(mesh)
-    v = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    f = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
-    if v.ndim != 2 or v.shape[1:] != (3,) or len(v) == 0:
-        raise DataError(name, f"mesh has no vertices (shape {v.shape}); nothing to render")
-    if f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0:
-        raise DataError(name, "mesh has no triangle faces; nothing to render")
-    if not np.isfinite(v).all():
-        raise DataError(name, "vertex coordinates contain NaN or infinity")
-    if f.min() < 0 or f.max() >= len(v):
-        raise DataError(name, "face indices out of range of the vertex list")
-    try:
-        center, scale = C.grid_transform(v)
-    except ValueError as err:
-        raise DataError(name, f"degenerate mesh: {err}") from None
+    v, f = check_mesh(getattr(mesh, "vertices", np.zeros((0, 3))), getattr(mesh, "faces", np.zeros((0, 3))), name)
+    center, scale = C.grid_transform(v)
     k = scale * size / C.OBJECT_VOXELS          # metres per file unit
     meta = dict(getattr(mesh, "metadata", {}) or {})
     meta.update(object_size=size)
@@ -251,15 +240,7 @@ class _MeshInfo:
     """What a renderer keeps per mesh: bounding sphere, projection hull, backend handle."""
 
     def __init__(self, mesh):
-        v = np.asarray(mesh.vertices, dtype=np.float64)
-        f = np.asarray(mesh.faces, dtype=np.int64)
-        name = _mesh_name(mesh)
-        if v.ndim != 2 or v.shape[1:] != (3,) or len(v) == 0 or f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0:
-            raise DataError(name, "empty mesh (no vertices or no triangle faces); nothing to render")
-        if not np.isfinite(v).all():
-            raise DataError(name, "vertex coordinates contain NaN or infinity")
-        if f.min() < 0 or f.max() >= len(v):
-            raise DataError(name, "face indices out of range of the vertex list")
+        v, f = check_mesh(mesh.vertices, mesh.faces, _mesh_name(mesh))
         mask = np.zeros(len(v), dtype=bool)
         mask[f.ravel()] = True
         used = v[mask]

@@ -19,8 +19,7 @@ import trimesh
 from scipy import ndimage
 
 from . import conventions as C
-from .errors import DataError
-from .meshio import read_mesh
+from .meshio import check_mesh, read_mesh
 
 
 def _as_arrays(mesh_or_path):
@@ -131,19 +130,9 @@ def voxelize(mesh_or_path, resolution: int = C.RESOLUTION, step: float = 0.5,
     Robust to meshes that are not watertight, self-intersect or have many parts.
     Raises :class:`DataError` naming the file for empty, degenerate or non-finite meshes.
     """
-    vertices, faces, name = _as_arrays(mesh_or_path)
     if resolution < 4:
         raise ValueError(f"resolution must be >= 4, got {resolution}")
-    if vertices.ndim != 2 or vertices.shape[1:] != (3,) or len(vertices) == 0:
-        raise DataError(name, f"mesh has no vertices (shape {vertices.shape})")
-    if faces.ndim != 2 or faces.shape[1:] != (3,) or len(faces) == 0:
-        raise DataError(name, "mesh has no triangle faces")
-    if not np.isfinite(vertices).all():
-        raise DataError(name, "vertex coordinates contain NaN or infinity")
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        raise DataError(name, "face indices out of range of the vertex list")
-    extent = np.ptp(vertices, axis=0)
-    if extent.max() <= 0:
-        raise DataError(name, "degenerate mesh: all vertices coincide")
+    vertices, faces, name = _as_arrays(mesh_or_path)
+    vertices, faces = check_mesh(vertices, faces, name)
     surface = surface_grid(vertices, faces, resolution, step)
     return fill_solid(surface, close)
