@@ -47,7 +47,6 @@ once) are not supported.
 from __future__ import annotations
 
 import glob
-import hashlib
 import http.client
 import logging
 import os
@@ -62,6 +61,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from .atomic import atomic_text, sha256_file
 from .errors import HBEOError
 
 logger = logging.getLogger(__name__)
@@ -78,7 +78,6 @@ MODELNET10_SHA256: str | None = None
 MODELNET10_SIZE: int | None = None
 
 MARKER_NAME = ".complete"        #: marker file written inside a fully extracted directory
-_HASH_CHUNK = 1 << 20
 _RETRYABLE_HTTP = {408, 429, 500, 502, 503, 504}
 
 
@@ -109,15 +108,6 @@ def _sidecar_path(dest: Path) -> Path:
     return dest.with_suffix(dest.suffix + ".sha256")
 
 
-def sha256_file(path: Path, chunk_size: int = _HASH_CHUNK) -> str:
-    """Hex sha256 of a file, read in chunks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(chunk_size):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _size(path: Path) -> int:
     try:
         return path.stat().st_size
@@ -130,12 +120,6 @@ def _unlink(path: Path) -> None:
         path.unlink()
     except FileNotFoundError:
         pass
-
-
-def _write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _read_sidecar(path: Path) -> tuple[str | None, int | None]:
@@ -161,7 +145,7 @@ def _read_sidecar(path: Path) -> tuple[str | None, int | None]:
 
 
 def _write_sidecar(dest: Path, sha: str, size: int) -> None:
-    _write_text_atomic(_sidecar_path(dest), f"{sha}  {dest.name}\n# size: {size}\n")
+    atomic_text(_sidecar_path(dest), f"{sha}  {dest.name}\n# size: {size}\n")
 
 
 def _verify(path: Path, sha256: str | None, size: int | None) -> str | None:

@@ -34,8 +34,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import tempfile
 import time
 import zipfile
 from collections import OrderedDict
@@ -49,6 +47,7 @@ from torch.utils.data import Dataset as TorchDataset, IterableDataset, Sampler, 
 from tqdm.auto import tqdm
 
 from . import __version__, config, conventions as C
+from .atomic import atomic_file, atomic_text, sha256_file
 from .errors import DataError
 from .poses import SAMPLERS, ViewSampler
 
@@ -280,48 +279,18 @@ class _ObjectRenderer:
 
 # --------------------------------------------------------------------------- shard files
 
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _write_npz(path: Path, arrays: dict) -> tuple[str, int]:
-    """Compressed .npz with fixed zip timestamps (same arrays -> same bytes), written to a
-    temporary name in the same folder and renamed into place. Returns (sha256, size)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            with zipfile.ZipFile(f, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-                for name, arr in arrays.items():
-                    info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                    info.compress_type = zipfile.ZIP_DEFLATED
-                    info.external_attr = 0o644 << 16
-                    with zf.open(info, "w", force_zip64=True) as fid:
-                        np.lib.format.write_array(fid, np.asanyarray(arr), allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
-        digest, size = _sha256(tmp), os.path.getsize(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return digest, size
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Compressed .npz with fixed zip timestamps (same arrays -> same bytes), written atomically.
+    Returns (sha256, size)."""
+    with atomic_file(path) as f:
+        with zipfile.ZipFile(f, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+            for name, arr in arrays.items():
+                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = 0o644 << 16
+                with zf.open(info, "w", force_zip64=True) as fid:
+                    np.lib.format.write_array(fid, np.asanyarray(arr), allow_pickle=False)
+    return sha256_file(path), path.stat().st_size
 
 
 def _sidecar(path: Path) -> Path:
@@ -341,7 +310,7 @@ def _finished_shard(path: Path) -> tuple[str, int] | None:
         recorded = side.read_text().split()[0]
     except (OSError, IndexError):
         return None
-    digest = _sha256(path)
+    digest = sha256_file(path)
     return (digest, path.stat().st_size) if digest == recorded else None
 
 
@@ -395,7 +364,7 @@ def _render_shard(ctx: _ObjectRenderer, path: Path, items, split: str) -> dict:
     arrays["mask"] = np.packbits(arrays["mask"].reshape(n, -1), axis=1)
     arrays["intrinsics"] = np.array(ctx.intrinsics.as_tuple(), np.float64)
     digest, size = _write_npz(path, arrays)
-    _atomic_text(_sidecar(path), f"{digest}  {path.name}\n")
+    atomic_text(_sidecar(path), f"{digest}  {path.name}\n")
     return {"sha256": digest, "bytes": size, "n_images": n, "backend": ctx.backend}
 
 
@@ -503,7 +472,7 @@ class Manifest:
         for s, p in zip(self.shards, self.shard_paths()):
             if not p.is_file():
                 raise DataError(p, "shard listed in the manifest is missing")
-            if _sha256(p) != s["sha256"]:
+            if sha256_file(p) != s["sha256"]:
                 raise DataError(p, "shard does not match the sha256 in the manifest")
 
     def __repr__(self):
@@ -587,7 +556,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         missing = [p for p in m.shard_paths() if not p.is_file()]
         if not missing:
             return m
-        _atomic_text(partial, json.dumps(ident, indent=1))   # a shard was deleted: render it again
+        atomic_text(partial, json.dumps(ident, indent=1))   # a shard was deleted: render it again
         final.unlink()
     if partial.exists():
         try:
@@ -599,7 +568,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         raise DataError(out, "holds shards but no manifest: not a set this hbeo is rendering; "
                              "render into another folder or delete it")
     else:
-        _atomic_text(partial, json.dumps(ident, indent=1))
+        atomic_text(partial, json.dumps(ident, indent=1))
     for tmp in out.glob(".shard_*.tmp"):         # left behind by a killed run
         tmp.unlink(missing_ok=True)
 
@@ -667,7 +636,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
                     "n_images": info[k]["n_images"], "objects": [starts[k], starts[k] + len(chunks[k])]}
                    for k in range(len(chunks))],
     })
-    _atomic_text(final, json.dumps(data, indent=1))
+    atomic_text(final, json.dumps(data, indent=1))
     partial.unlink(missing_ok=True)
     rate = rendered / seconds if rendered and seconds > 0 else None
     return Manifest(final, data, images_per_s=rate, rendered=rendered, seconds=seconds)
