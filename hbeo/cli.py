@@ -57,7 +57,7 @@ def cmd_voxelize(args) -> int:
     from . import config, datasets
     from .gridset import build_gridset
     prof = config.get_profile(args.profile)
-    ds = datasets.get_dataset(args.dataset, profile=prof)
+    ds = _load_dataset(args.dataset, prof)
     out = config.run_dir(prof.name, args.dataset, args.out)
     for split in ("train", "test"):
         recs = datasets.select(ds, split, prof)

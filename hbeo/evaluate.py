@@ -43,34 +43,32 @@ def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
                    noise: bool = False, per_class: int | None = None, progress: bool = True,
                    chunk: int = 64) -> dict:
-    """Render, predict and score; returns the metrics dict described in the module docstring."""
-    from .render import Renderer, SensorNoise, record_mesh
-    from .renderset import RenderSettings
+    """Render, predict and score; returns the metrics dict described in the module docstring.
+
+    Views come from :class:`hbeo.renderset.ObjectViews` with the model's render settings, ``views``
+    per object, ``seed``, ``noise`` and (if given) ``sampler``: object i of the split gets the same
+    random stream a rendered set of that split would give it."""
+    from .renderset import ObjectViews, RenderSettings
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
-    rs = RenderSettings.from_dict(model.settings.get("render", {}))
-    if sampler:
-        rs = RenderSettings.from_dict({**rs.to_dict(), "sampler": sampler})
+    over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
+    rs = RenderSettings.from_dict({**model.settings.get("render", {}), **over})
     K = model.intrinsics
     records = dataset.records(split=split, per_class=per_class)
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
-    vs, sensor = rs.view_sampler, SensorNoise() if noise else None
     rows = []
     bar = tqdm(total=len(records), desc=f"evaluate {dataset.name}/{split}", disable=not progress)
     for start in range(0, len(records), chunk):
         # render a chunk with the renderer closed afterwards, then predict it: the renderer's
         # threads would otherwise compete with the network's and distort the runtimes
-        batch = []
-        with Renderer(K, rs.backend) as renderer:
+        viewer, batch = ObjectViews(rs), []
+        try:
             for i in range(start, min(start + chunk, len(records))):
-                rec = records[i]
-                rng = np.random.default_rng([seed, 7, i])
-                Rs, ts = vs.sample(views, rng)
-                depth = renderer.render_many(record_mesh(rec, rs.object_size), Rs, ts)
-                if sensor is not None:
-                    depth = sensor.apply(depth, K, rng)
-                batch.append((rec, Rs, depth, record_grid(rec)))
+                v = viewer.views(records[i], i, -1, split)
+                batch.append((records[i], v["rotation"], v["depth"].astype(np.float32), record_grid(records[i])))
+        finally:
+            viewer.close()
         if start == 0:                 # one untimed call: first-call set-up is not a per-query cost
             model.predict(batch[0][2][0], K)
         for rec, Rs, depth, truth in batch:

@@ -190,8 +190,10 @@ def _noise_description(noise) -> dict | None:
     return {"model": type(noise).__name__, **params}
 
 
-class _ObjectRenderer:
-    """All views of one object at a time, with one Renderer per process (opened lazily)."""
+class ObjectViews:
+    """All views of one object at a time, with one Renderer per process (opened lazily): the one
+    place that turns an object and the settings into labelled depth images (for :func:`render_set`,
+    :class:`StreamingDepth` and :func:`hbeo.evaluate.evaluate_model`)."""
 
     def __init__(self, settings: RenderSettings, subspace=None):
         from . import render
@@ -205,9 +207,7 @@ class _ObjectRenderer:
 
     @property
     def backend(self) -> str:
-        r = self.renderer
-        name = getattr(r, "backend", None) or getattr(r, "backend_name", None) if r is not None else None
-        return str(name) if name else self.settings.backend
+        return self.renderer.backend if self.renderer is not None else self.settings.backend
 
     def open(self):
         if self.renderer is None:
@@ -224,15 +224,8 @@ class _ObjectRenderer:
     def coeffs(self, record) -> np.ndarray:
         key = (record.split, record.cls, record.id)
         if key not in self._coeffs:
-            from .gridset import record_grid
-            try:
-                grid = record_grid(record)
-            except DataError:
-                raise
-            except Exception as err:
-                raise DataError(record.path or _record_name(record),
-                                f"no grid for the coefficients ({type(err).__name__}: {err})") from err
-            self._coeffs[key] = np.asarray(self.subspace.project(grid[None])[0], np.float32)
+            from .gridset import record_grid       # raises DataError naming the object
+            self._coeffs[key] = np.asarray(self.subspace.project(record_grid(record)[None])[0], np.float32)
         return self._coeffs[key]
 
     def views(self, record, position: int, label: int, split: str, epoch: int = 0) -> dict:
@@ -242,8 +235,6 @@ class _ObjectRenderer:
         R, t = s.view_sampler.sample(s.views_per_object, rng)
         try:
             mesh = self.render.record_mesh(record, object_size=s.object_size)
-            if mesh is None or len(getattr(mesh, "faces", ())) == 0:
-                raise ValueError("empty mesh")
         except Exception as err:
             raise DataError(record.path or _record_name(record),
                             f"cannot render object {_record_name(record)}: no usable mesh "
@@ -333,7 +324,7 @@ def load_shard(path) -> dict:
 
 # --------------------------------------------------------------------------- workers
 
-_WORKER: _ObjectRenderer | None = None
+_WORKER: ObjectViews | None = None
 
 
 def _die_with_parent() -> None:
@@ -353,10 +344,10 @@ def _init_worker(settings, subspace):
     torch.set_num_threads(1)
     from threadpoolctl import threadpool_limits
     threadpool_limits(1)           # idle OpenBLAS threads halve the speed of parallel workers
-    _WORKER = _ObjectRenderer(settings, subspace)
+    _WORKER = ObjectViews(settings, subspace)
 
 
-def _render_shard(ctx: _ObjectRenderer, path: Path, items, split: str) -> dict:
+def _render_shard(ctx: ObjectViews, path: Path, items, split: str) -> dict:
     """Render the objects ``items`` [(position, record, label)] into shard ``path``."""
     parts = [ctx.views(rec, pos, label, split) for pos, rec, label in items]
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -824,7 +815,7 @@ class StreamingDepth(IterableDataset):
         info = get_worker_info()
         wid, nw = (0, 1) if info is None else (info.id, info.num_workers)
         mine = self.object_order()[wid::nw]
-        ctx = _ObjectRenderer(self.settings, self.subspace)
+        ctx = ObjectViews(self.settings, self.subspace)
         try:
             for p in mine:
                 arrays = ctx.views(self.records[p], int(p), self.labels[p], self.split, self.epoch)
