@@ -30,4 +30,4 @@ benchmark: setup
 	$(PY) benchmarks/bench_voxelize.py
 
 clean-results:
-	rm -rf results/ci results/cpu results/full
+	rm -rf results/ci-* results/cpu-* results/full-*

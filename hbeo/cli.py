@@ -130,10 +130,12 @@ def cmd_train(args) -> int:
     from . import config
     from .fit import ViewOptions, fit_model
     from .pipeline import ensure_render
+    from .renderset import RenderSettings
     prof = config.get_profile(args.profile)
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
     run = config.run_dir(prof.name, args.dataset, args.out)
-    ensure_render(args.dataset, prof, run, "train", progress=not args.quiet)
+    settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler)
+    ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
     model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
                             view=view, seed=args.seed, out_name=args.name, progress=not args.quiet)
@@ -171,14 +173,20 @@ def cmd_predict(args) -> int:
 
 def cmd_evaluate(args) -> int:
     from .evaluate import evaluate_model
+    from .methods import check_method, load_method
     from .model import HBEO
+    pose = check_method(args.method, args.pose)
     model = HBEO.load(args.model)
-    ds = _load_dataset(args.dataset, model.settings.get("profile", "cpu"))
+    profile = model.settings.get("profile", "cpu")
+    ds = _load_dataset(args.dataset, profile)
+    method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
+                                                            progress=not args.quiet)
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
-                             noise=args.noise, per_class=args.per_class, progress=not args.quiet)
+                             noise=args.noise, per_class=args.per_class, progress=not args.quiet,
+                             method=method, pose=pose)
     metrics["model"] = str(args.model)
     _write_json(args.out, metrics)
-    short = {k: metrics[k] for k in ("accuracy", "pose_error_deg", "completion", "runtime_ms")}
+    short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     print(json.dumps(short, indent=2))
     return 0
 
@@ -187,6 +195,13 @@ def cmd_reproduce(args) -> int:
     from .reproduce import run_notebooks
     run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out,
                   only=args.only)
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .reproduce import write_reproduction
+    path = write_reproduction(args.run, args.out)
+    print(f"wrote {path}")
     return 0
 
 
@@ -202,12 +217,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_data)
     p = sub.add_parser("voxelize", help="voxelize a dataset into 30^3 grids (cached, resumable)")
     _dataset_arg(p)
-    p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
     p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
     p.set_defaults(func=cmd_voxelize)
     p = sub.add_parser("subspace", help="fit the shared VBPCA subspace; print components and completion errors")
     _dataset_arg(p, profile="full")
-    p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--variance", type=float, default=0.6, help="variance fraction per class (default 0.6, the paper's)")
     g.add_argument("--shared-dim", type=int, help="choose one variance fraction giving this shared dimension (paper: 344)")
@@ -218,7 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_subspace)
     p = sub.add_parser("render", help="render segmented depth images with pose/class/shape labels (resumable)")
     _dataset_arg(p)
-    p.add_argument("--out", help="output folder; sets go to OUT/render_SPLIT (default: results/PROFILE/DATASET)")
+    p.add_argument("--out", help="output folder; sets go to OUT/render_SPLIT (default: results/PROFILE-DATASET)")
     p.add_argument("--split", choices=("train", "test", "both"), default="train", help="split(s) to render (train)")
     p.add_argument("--views", type=int, help="views per object (default: the profile's)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
@@ -234,8 +249,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_render)
     p = sub.add_parser("train", help="train HBEONet (builds grids, subspace and renderings if missing)")
     _dataset_arg(p)
-    p.add_argument("--out", help="run folder (default: results/PROFILE/DATASET)")
+    p.add_argument("--out", help="run folder (default: results/PROFILE-DATASET)")
     p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
+    p.add_argument("--views", type=int, help="rendered views per training object (default: the profile's)")
+    p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
+                   help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
     p.add_argument("--rotation", choices=("axis_angle", "6d"), default="axis_angle",
                    help="pose output: the paper's axis-angle (default) or the continuous 6-D representation")
     p.add_argument("--normalize", choices=("none", "center"), default="none",
@@ -256,7 +274,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
     p.set_defaults(func=cmd_predict)
     p = sub.add_parser("evaluate", help="render a dataset's views, predict and write the metrics JSON")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
+                                                  "every method; baselines live beside it)")
+    p.add_argument("--method", choices=("hbeo", "beo", "icp", "voxcnn"), default="hbeo",
+                   help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
+    p.add_argument("--pose", choices=("known", "1dof", "3dof"),
+                   help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")
     p.add_argument("--split", choices=("train", "test"), default="test")
     p.add_argument("--views", type=int, default=1, help="views per object (1)")
@@ -269,9 +292,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
     p = sub.add_parser("reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
-    p.add_argument("--out", help="output folder (default: results/PROFILE/DATASET)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
     p.add_argument("--only", nargs="*", help="notebook name prefixes to run (default: all)")
     p.set_defaults(func=cmd_reproduce)
+    p = sub.add_parser("report", help="write paper/REPRODUCTION.md (reported vs. reproduced) from a finished run")
+    p.add_argument("--run", required=True, help="run folder, e.g. results/cpu-modelnet10-vox30")
+    p.add_argument("--out", help="output file (default: paper/REPRODUCTION.md)")
+    p.set_defaults(func=cmd_report)
     return ap
 
 

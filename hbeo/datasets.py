@@ -262,7 +262,7 @@ def get_dataset(name: str, profile=None, **kwargs) -> Dataset:
     if name == "procedural":
         if profile is not None:
             prof = config.get_profile(profile)
-            kwargs.setdefault("n_train", prof.n_train_per_class or config.PROCEDURAL_FULL["train"])
+            kwargs.setdefault("n_train", prof.n_train_per_class or prof.procedural_train_per_class)
             kwargs.setdefault("n_test", prof.n_test_per_class or config.PROCEDURAL_FULL["test"])
         return ProceduralDataset(**kwargs)
     if name == "modelnet10":

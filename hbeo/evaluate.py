@@ -4,21 +4,34 @@
 model's own camera and distances (its training render settings), predicts, and scores.
 Keys of the returned dict (stable; the evaluation notebooks and outside checks read them):
 
-``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
+``method`` (``hbeo``, ``beo``, ``icp``, ``voxcnn``), ``pose`` (``known``, ``1dof``, ``3dof``: what
+the method had to estimate), ``given_class`` (the true class was given: accuracy is then 1 by
+construction), ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
 ``n_objects``, ``n_queries``
 ``accuracy``                         fraction of queries with the right class
 ``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
                                      ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
                                      turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`)
-``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.metrics`)
+``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.metrics`) and
+                                     ``empty_fraction`` (queries whose completed grid is empty)
+``completion_baseline``              the trivial answer "the class's mean training shape" (the
+                                     subspace's class mean thresholded at 0.5), scored like
+                                     ``completion``: ``predicted_class`` (the model's class) and
+                                     ``true_class`` ({``edt``, ``naive``, ``iou``} each), and
+                                     ``true_class_iou_t03`` (threshold 0.3); absent when the method
+                                     has no class means
 ``runtime_ms``                       ``mean_per_query``, ``median_per_query`` (preprocessing + network +
                                      back-projection, one view per call, after one warm-up call)
 ``per_class``                        {class: {``n``, ``accuracy``, ``pose_mean_deg``,
                                      ``pose_median_deg``, ``pose_median_sym_deg``, ``edt``,
                                      ``naive``, ``iou``}}
 ``confusion``                        rows: true class, columns: predicted class (counts)
+``per_query``                        columns over queries (for distributions): ``class``, ``pred``,
+                                     ``pose_deg``, ``pose_sym_deg``, ``edt``, ``naive``, ``iou``, ``ms``
 """
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -42,45 +55,85 @@ def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> 
 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
                    noise: bool = False, per_class: int | None = None, progress: bool = True,
-                   chunk: int = 64) -> dict:
+                   chunk: int = 64, method=None, pose: str | None = None) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
     Views come from :class:`hbeo.renderset.ObjectViews` with the model's render settings, ``views``
     per object, ``seed``, ``noise`` and (if given) ``sampler``: object i of the split gets the same
-    random stream a rendered set of that split would give it."""
+    random stream a rendered set of that split would give it.
+
+    ``method``: None for the HBEO ``model`` itself, or a baseline (:mod:`hbeo.methods`) whose
+    ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true, rng)`` answers
+    each view; ``model`` then only fixes the camera and the views. ``pose``: the baseline's pose
+    setting (``known``, ``1dof``, ``3dof``); HBEO always estimates all three degrees of freedom.
+    """
+    from .methods import GIVEN_CLASS
     from .renderset import ObjectViews, RenderSettings
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
     over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
     rs = RenderSettings.from_dict({**model.settings.get("render", {}), **over})
     K = model.intrinsics
+    classes = tuple(model.classes)
+    means = class_mean_grids(model.subspace) if getattr(model, "subspace", None) is not None else None
+    name, pose = ("hbeo", "3dof") if method is None else (method.name, pose or method.default_pose)
     records = dataset.records(split=split, per_class=per_class)
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
     rows = []
-    bar = tqdm(total=len(records), desc=f"evaluate {dataset.name}/{split}", disable=not progress)
+    bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
+    warm = False
     for start in range(0, len(records), chunk):
         # render a chunk with the renderer closed afterwards, then predict it: the renderer's
         # threads would otherwise compete with the network's and distort the runtimes
         viewer, batch = ObjectViews(rs), []
         try:
             for i in range(start, min(start + chunk, len(records))):
-                v = viewer.views(records[i], i, -1, split)
-                batch.append((records[i], v["rotation"], v["depth"].astype(np.float32), record_grid(records[i])))
+                batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
         finally:
             viewer.close()
-        if start == 0:                 # one untimed call: first-call set-up is not a per-query cost
-            model.predict(batch[0][2][0], K)
-        for rec, Rs, depth, truth in batch:
-            for v in range(views):
-                if not (depth[v] > 0).any():
+        for i, rec, v, truth in batch:
+            for j in range(views):
+                depth = v["depth"][j].astype(np.float32)
+                if not (depth > 0).any():
                     continue          # nothing visible (cannot happen with sane settings; never scored as 0)
-                p = model.predict(depth[v], K)
-                rows.append({"class": rec.cls, "pred": p.class_names[0], "R_true": Rs[v], "R_pred": p.rotation[0],
-                             "grid": p.grids[0], "truth": truth, "ms": p.timing_ms["total"]})
+                if method is None:
+                    if not warm:      # one untimed call: first-call set-up is not a per-query cost
+                        model.predict(depth, K)
+                        warm = True
+                    p = model.predict(depth, K)
+                    pred, R_pred, grid, ms = p.class_names[0], p.rotation[0], p.grids[0], p.timing_ms["total"]
+                else:
+                    query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
+                                 object_size=rs.object_size, pose=pose,
+                                 label_true=classes.index(rec.cls) if (name, pose) in GIVEN_CLASS else None)
+                    if not warm:
+                        method.predict_view(depth, K, rng=np.random.default_rng([seed, 1]), **query)
+                        warm = True
+                    t0 = time.perf_counter()
+                    out = method.predict_view(depth, K, rng=np.random.default_rng([seed, 2, i, j]), **query)
+                    ms = (time.perf_counter() - t0) * 1e3
+                    pred = classes[int(np.argmax(out["probabilities"]))]
+                    R_pred, grid = out["rotation"], out["grid"]
+                row = {"class": rec.cls, "pred": pred, "R_true": v["rotation"][j], "R_pred": R_pred,
+                       "grid": grid, "truth": truth, "ms": ms}
+                if means is not None:
+                    row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
+                rows.append(row)
             bar.update(1)
     bar.close()
-    return summarize(rows, model.classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
+    out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
+    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, **out}
+
+
+def class_mean_grids(subspace) -> dict[str, np.ndarray]:
+    """{class: float (30, 30, 30) mean training grid} from a fitted :class:`~hbeo.subspace.ObjectSubspace`."""
+    return {c: subspace.eigen_object(c).astype(np.float32) for c in subspace.classes_}
+
+
+def _completion(truth: np.ndarray, pred: np.ndarray) -> dict:
+    return {"edt": float(edt_error(truth, pred).mean()), "naive": float(naive_error(truth, pred).mean()),
+            "iou": float(iou(truth, pred).mean())}
 
 
 def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, seed: int, sampler: str,
@@ -110,7 +163,22 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
             "accuracy": float(correct.mean()),
             "pose_error_deg": {"mean": float(raw.mean()), "median": float(np.median(raw)),
                                "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym))},
-            "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean())},
+            "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
+                           "empty_fraction": float((pred.reshape(len(pred), -1).sum(1) == 0).mean())},
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
                            "median_per_query": float(np.median([r["ms"] for r in rows]))},
-            "per_class": per, "classes": list(classes), "confusion": conf.tolist()}
+            "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
+            "per_query": {"class": cls.tolist(), "pred": [r["pred"] for r in rows], "pose_deg": raw.round(4).tolist(),
+                          "pose_sym_deg": sym.round(4).tolist(), "edt": edt.round(6).tolist(),
+                          "naive": nai.round(6).tolist(), "iou": io.round(6).tolist(),
+                          "ms": [round(float(r["ms"]), 4) for r in rows]},
+            **_baseline(rows, truth)}
+
+
+def _baseline(rows: list[dict], truth: np.ndarray) -> dict:
+    if not rows or "mean_pred" not in rows[0]:
+        return {}
+    mp, mt = np.stack([r["mean_pred"] for r in rows]), np.stack([r["mean_true"] for r in rows])
+    return {"completion_baseline": {"predicted_class": _completion(truth, mp >= 0.5),
+                                    "true_class": _completion(truth, mt >= 0.5),
+                                    "true_class_iou_t03": float(iou(truth, mt >= 0.3).mean())}}

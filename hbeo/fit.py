@@ -96,7 +96,7 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
                          f"render it again (notebook 03)")
     tr_idx, va_idx = split_by_object(m, val_fraction, seed)
     cfg = NetConfig(image_size=tuple(m.settings.image_size), n_classes=len(m.classes), n_coeffs=sub.dim_,
-                    conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), rotation=rotation,
+                    conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
                     normalization=normalization)
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
                      progress=progress, warmup_steps=min(100, max(1, len(tr_idx) // prof.batch_size)))

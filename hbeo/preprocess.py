@@ -17,6 +17,7 @@ so there are no holes; depth is re-expressed as z in the virtual camera.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -32,6 +33,22 @@ class View:
     center: np.ndarray      #: (3,) robust centre of the observed points, user camera frame, metres
     distance: float         #: estimated distance of the object's centre: |center| + its lateral radius
     zoom: float             #: virtual focal length / model focal length (1 without ref_distance)
+
+
+@lru_cache(maxsize=8)
+def _pixel_rays_cached(K: Intrinsics, zoom: float) -> np.ndarray:
+    v, u = np.mgrid[0:K.height, 0:K.width]
+    rays = np.stack([(u - K.cx) / (K.fx * zoom), (v - K.cy) / (K.fy * zoom), np.ones_like(u, float)], -1)
+    rays.setflags(write=False)
+    return rays
+
+
+def _pixel_rays(K: Intrinsics, zoom: float) -> np.ndarray:
+    """Rays (H, W, 3) through the pixel centres of camera ``K`` with its focal length times ``zoom``
+    (cached for the unzoomed camera, which every call without distance normalization uses)."""
+    if zoom == 1.0:
+        return _pixel_rays_cached(K, 1.0)
+    return _pixel_rays_cached.__wrapped__(K, zoom)
 
 
 def look_at(direction: np.ndarray) -> np.ndarray:
@@ -84,9 +101,9 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     lateral = np.sqrt(2 * np.mean(np.sum((local[:, :2] - np.median(local[:, :2], axis=0)) ** 2, axis=1)))
     dist = float(np.linalg.norm(center) + lateral)   # the centre lies about one radius behind the surface
     zoom = dist / ref_distance if ref_distance else 1.0
-    f_x, f_y = K_model.fx * zoom, K_model.fy * zoom
-    v, u = np.mgrid[0:K_model.height, 0:K_model.width]
-    rays = np.stack([(u - K_model.cx) / f_x, (v - K_model.cy) / f_y, np.ones_like(u, float)], -1) @ Q.T
+    if not recenter and zoom == 1.0 and K_user == K_model:
+        return View(d.astype(np.float32), Q, center, dist, zoom)   # the model's own camera: nothing to resample
+    rays = _pixel_rays(K_model, zoom) @ Q.T
     with np.errstate(divide="ignore", invalid="ignore"):
         uu = np.rint(K_user.fx * rays[..., 0] / rays[..., 2] + K_user.cx)
         vv = np.rint(K_user.fy * rays[..., 1] / rays[..., 2] + K_user.cy)

@@ -132,4 +132,41 @@ def depth_and_grid_gallery(items, size: int = 120, panel: float = 1.7):
     return fig
 
 
+def confusion(ax, matrix, classes, title: str | None = None):
+    """Row-normalized confusion matrix (rows: true class, columns: predicted) with counts."""
+    m = np.asarray(matrix, dtype=float)
+    norm = m / np.maximum(m.sum(1, keepdims=True), 1)
+    ax.imshow(norm, cmap="Blues", vmin=0, vmax=1)
+    names = [c.replace("_", " ") for c in classes]
+    ax.set_xticks(range(len(classes)), names, rotation=90, fontsize=7)
+    ax.set_yticks(range(len(classes)), names, fontsize=7)
+    ax.set_xlabel("predicted class", fontsize=8)
+    ax.set_ylabel("true class", fontsize=8)
+    for i in range(len(classes)):
+        for j in range(len(classes)):
+            if m[i, j]:
+                ax.text(j, i, int(m[i, j]), ha="center", va="center", fontsize=6,
+                        color="white" if norm[i, j] > 0.5 else "black")
+    if title:
+        ax.set_title(title, fontsize=9)
+
+
+def error_violins(ax, groups: dict, ylabel: str, title: str | None = None):
+    """Violin per group {label: values} with the mean marked by a dot and the median by a bar
+    (the paper's pose-error figure marks the mean with a circle)."""
+    labels = list(groups)
+    data = [np.asarray(groups[k], dtype=float) for k in labels]
+    pos = np.arange(1, len(data) + 1)
+    ok = [d for d in data if len(d) > 1]
+    if ok:
+        ax.violinplot([d if len(d) > 1 else np.repeat(d, 2) for d in data], pos, showmedians=True,
+                      showextrema=False)
+    ax.scatter(pos, [d.mean() if len(d) else np.nan for d in data], color="k", zorder=3, label="mean")
+    ax.set_xticks(pos, [f"{k}\n(n={len(d)})" for k, d in zip(labels, data)], fontsize=7)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=7, loc="upper right")
+    if title:
+        ax.set_title(title, fontsize=9)
+
+
 assert C.RESOLUTION == 30  # the renderer's defaults assume the standard grid size

@@ -68,3 +68,12 @@ def test_bad_depth_inputs(depth, mask, msg):
     K = Intrinsics.kinect(64, 48)
     with pytest.raises(ValueError, match=msg):
         to_model_view(depth, K, K, mask=mask)
+
+
+def test_same_camera_fast_path_equals_the_general_resampling():
+    K = Intrinsics.kinect(64, 48)
+    d = sphere_depth(K, np.array([0.1, -0.05, 1.6]), 0.35)
+    K_almost = Intrinsics(K.fx, K.fy, K.cx + 1e-9, K.cy, K.width, K.height)   # not equal: general path
+    fast, slow = to_model_view(d, K, K, recenter=False), to_model_view(d, K, K_almost, recenter=False)
+    assert np.array_equal(fast.depth, slow.depth)
+    assert np.allclose(fast.center, slow.center) and fast.distance == pytest.approx(slow.distance)

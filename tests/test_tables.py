@@ -1,0 +1,80 @@
+"""Tables and claims from evaluation metrics (synthetic metrics from hbeo.evaluate.summarize)."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from hbeo import reproduce, tables
+from hbeo.conventions import CLASSES
+from hbeo.evaluate import summarize
+from hbeo.poses import uniform_so3
+
+
+def fake_metrics(method, pose, accuracy, pose_err_deg, iou_shift=0, given=False, n=40, seed=0):
+    """Metrics of n queries over all classes with the given accuracy and a fixed pose error."""
+    rng = np.random.default_rng(seed)
+    from scipy.spatial.transform import Rotation
+    truth = np.zeros((30, 30, 30), bool)
+    truth[8:22, 8:22, 8:22] = True
+    pred_grid = np.roll(truth, iou_shift, axis=0)
+    R = uniform_so3(n, rng)
+    tilt = Rotation.from_euler("x", pose_err_deg, degrees=True).as_matrix()
+    rows = []
+    for i in range(n):
+        c = CLASSES[i % len(CLASSES)]
+        ok = i < round(accuracy * n)
+        rows.append({"class": c, "pred": c if ok else CLASSES[(i + 1) % len(CLASSES)], "R_true": R[i],
+                     "R_pred": R[i] @ tilt, "grid": pred_grid, "truth": truth, "ms": 5.0,
+                     "mean_pred": truth.astype(np.float32) * 0.6, "mean_true": truth.astype(np.float32) * 0.6})
+    m = summarize(rows, CLASSES, "procedural", "test", 1, 0, "so3", False, n)
+    return {"method": method, "pose": pose, "given_class": given, **m}
+
+
+@pytest.fixture
+def evals():
+    return [fake_metrics("hbeo", "3dof", 0.8, 20), fake_metrics("beo", "known", 0.7, 0, iou_shift=2),
+            fake_metrics("beo", "1dof", 0.5, 30, iou_shift=3), fake_metrics("beo", "3dof", 1.0, 60, given=True),
+            fake_metrics("icp", "3dof", 1.0, 90, given=True), fake_metrics("voxcnn", "known", 0.6, 0, iou_shift=1)]
+
+
+def test_table1_has_reproduced_and_reported_rows_and_skips_given_class(evals):
+    t = tables.table1(evals, reproduce.paper_table("table1_classification"))
+    rep = t[t.source == "reproduced"]
+    assert set(rep.method) == {"HBEO (3-DOF)", "BEO (known pose)", "BEO (1-DOF)",
+                               "3-D CNN on partial grid (known pose)"}      # given-class settings left out
+    assert rep.set_index("method").loc["HBEO (3-DOF)", "total"] == pytest.approx(80)
+    paper = t[t.source == "reported"].set_index("method")
+    assert paper.loc["HBEO", "total"] == 81.8 and paper.loc["3DShapeNets", "total"] == 54.4
+    assert list(t.setting.unique()) == ["known", "1dof", "3dof"]            # paper order
+    md = tables.to_markdown(t)
+    assert md.count("\n") == len(t) + 1 and "| reported |" in md
+
+
+def test_pose_completion_runtime_tables(evals):
+    ps = tables.pose_summary(evals).set_index("method")
+    assert ps.loc["HBEO (3-DOF)", "mean (°)"] == pytest.approx(20, abs=1e-3)
+    assert ps.loc["ICP (3-DOF, true class)", "median (°)"] == pytest.approx(90, abs=1e-3)
+    assert "BEO (known pose)" not in ps.index
+    cs = tables.completion_summary(evals).set_index("method")
+    assert cs.loc["HBEO (3-DOF)", "IoU"] == 1.0 and cs.loc["BEO (known pose)", "IoU"] < 1.0
+    assert "class mean shape (HBEO's class)" in cs.index
+    t2 = tables.table2(evals, reproduce.paper_table("table2_runtime")).set_index("method")
+    assert t2.loc["HBEO (3-DOF)", "reproduced (s)"] == pytest.approx(0.005)
+    assert t2.loc["HBEO (3-DOF)", "paper (s)"] == pytest.approx(0.01)
+    assert t2.loc["BEO (1-DOF)", "paper (s)"] == pytest.approx(672.97)
+    assert "3dshapenets (known), reported only" in t2.index
+
+
+def test_claims_are_decided_by_the_numbers(evals):
+    cl = tables.claims(evals).set_index("claim (paper)")["holds"]
+    assert cl["HBEO's mean 3-DOF pose error is less than half of BEO's"] == "yes"      # 20 < 60 / 2
+    assert cl["HBEO's pose error is below the ICP baseline's"] == "yes"
+    assert cl["HBEO (unknown 3-DOF pose) classifies better than BEO with known pose"] == "yes"
+    worse = [fake_metrics("hbeo", "3dof", 0.3, 50), *evals[1:]]
+    cl2 = tables.claims(worse).set_index("claim (paper)")["holds"]
+    assert cl2["HBEO's mean 3-DOF pose error is less than half of BEO's"] == "no"     # 50 > 60 / 2
+    assert cl2["HBEO (unknown 3-DOF pose) classifies better than BEO with known pose"] == "no"
+
+
+def test_markdown_formats_missing_values():
+    md = tables.to_markdown(pd.DataFrame({"a": ["x", "y"], "b": [1.25, np.nan]}))
+    assert md.splitlines()[2] == "| x | 1.2 |" and md.splitlines()[3] == "| y | – |"
