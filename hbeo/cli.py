@@ -126,19 +126,31 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _loss_weights(text: str):
+    from .net import LossWeights
+    try:
+        c, o, p = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--loss-weights takes three numbers gamma_c,gamma_o,gamma_p, got {text!r}") from None
+    if min(c, o, p) < 0:
+        raise ValueError(f"--loss-weights must not be negative, got {text!r}")
+    return LossWeights(c, o, p)
+
+
 def cmd_train(args) -> int:
     from . import config
     from .fit import ViewOptions, fit_model
     from .pipeline import ensure_render
     from .renderset import RenderSettings
     prof = config.get_profile(args.profile)
+    weights = _loss_weights(args.loss_weights)
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
     run = config.run_dir(prof.name, args.dataset, args.out)
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler)
     ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
     model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
-                            view=view, seed=args.seed, out_name=args.name, progress=not args.quiet)
+                            view=view, seed=args.seed, out_name=args.name, progress=not args.quiet, loss=weights)
     print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
           f"{model.subspace.dim_} coefficients)")
     return 0
@@ -252,6 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="run folder (default: results/PROFILE-DATASET)")
     p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
     p.add_argument("--views", type=int, help="rendered views per training object (default: the profile's)")
+    p.add_argument("--loss-weights", default="1,1,1",
+                   help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
     p.add_argument("--rotation", choices=("axis_angle", "6d"), default="axis_angle",

@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 from . import config
 from .conventions import rotation_to_axis_angle
 from .model import HBEO
-from .net import NetConfig
+from .net import LossWeights, NetConfig
 from .preprocess import to_model_view
 from .renderset import Manifest, load_shard, split_by_object, subspace_info
 from .subspace import ObjectSubspace
@@ -81,9 +81,11 @@ class ViewArrays(Dataset):
 
 def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_angle", normalization: str = "none",
               view: ViewOptions | None = None, val_fraction: float = 0.1, seed: int = 0,
-              out_name: str = "model.hbeo", progress: bool = True) -> tuple[HBEO, Path]:
+              out_name: str = "model.hbeo", progress: bool = True,
+              loss: LossWeights | None = None) -> tuple[HBEO, Path]:
     """Train on ``run/render_train`` with ``run/subspace.npz``; writes ``run/<out_name>`` and
-    returns the model and its path. Checkpoints go to ``run/train_<stem>/`` (resumable)."""
+    returns the model and its path. Checkpoints go to ``run/train_<stem>/`` (resumable).
+    ``loss``: the weights gamma_c, gamma_o, gamma_p of the paper's loss (default 1, 1, 1)."""
     run = Path(run)
     prof = config.get_profile(profile)
     view = view or ViewOptions()
@@ -99,7 +101,8 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
                     conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
                     normalization=normalization)
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
-                     progress=progress, warmup_steps=min(100, max(1, len(tr_idx) // prof.batch_size)))
+                     progress=progress, warmup_steps=min(100, max(1, len(tr_idx) // prof.batch_size)),
+                     loss=loss or LossWeights())
     net = train(cfg, Subset(data, tr_idx), Subset(data, va_idx), run / f"train_{Path(out_name).stem}", tc)
     settings = {"object_size": m.settings.object_size, "recenter": view.recenter, "ref_distance": view.ref_distance,
                 "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std, "render": m.settings.to_dict(),

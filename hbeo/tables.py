@@ -64,7 +64,8 @@ def table1(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
     order = {"known": 0, "1dof": 1, "3dof": 2}
     df = pd.DataFrame(rows)
     df["_o"] = df["setting"].map(order)
-    return df.sort_values(["_o", "method", "source"]).drop(columns="_o").reset_index(drop=True)
+    df["_s"] = (df["source"] == "reproduced").astype(int)            # the paper's rows first
+    return df.sort_values(["_o", "_s", "method"]).drop(columns=["_o", "_s"]).reset_index(drop=True)
 
 
 def pose_summary(evals: list[dict]) -> pd.DataFrame:
