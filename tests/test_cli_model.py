@@ -71,4 +71,62 @@ def test_evaluate_writes_the_documented_keys(trained, tmp_path):
     for key in ("accuracy", "pose_error_deg", "completion", "runtime_ms", "per_class", "confusion", "n_queries"):
         assert key in m
     assert m["n_queries"] == 10 and 0 <= m["accuracy"] <= 1
-    assert set(m["completion"]) == {"edt", "naive", "iou"}
+    assert set(m["completion"]) == {"edt", "naive", "iou", "empty_fraction"}
+    assert m["method"] == "hbeo" and m["pose"] == "3dof" and not m["given_class"]
+    assert set(m["completion_baseline"]) == {"predicted_class", "true_class", "true_class_iou_t03"}
+    assert len(m["per_query"]["pose_deg"]) == 10
+
+
+@pytest.mark.parametrize("method, pose, given", [("beo", "known", False), ("beo", "1dof", False),
+                                                 ("icp", "3dof", True), ("voxcnn", "known", False)])
+def test_evaluate_baselines_write_the_same_keys(trained, tmp_path, method, pose, given):
+    """Every method answers through the same evaluate command and JSON; a missing baseline is built
+    beside the model (BEO and ICP fitted on the run's grids, the voxel network trained)."""
+    ref = run("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--per-class", "1",
+              "--out", str(tmp_path / "h.json"), "--quiet")
+    assert ref.returncode == 0, ref.stderr
+    out = run("evaluate", "--model", str(trained / "model.hbeo"), "--method", method, "--pose", pose,
+              "--dataset", "procedural", "--per-class", "1", "--out", str(tmp_path / "m.json"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    h, m = json.loads((tmp_path / "h.json").read_text()), json.loads((tmp_path / "m.json").read_text())
+    assert set(m) == set(h)
+    assert (m["method"], m["pose"], m["given_class"]) == (method, pose, given)
+    assert m["n_queries"] == 10 and set(m["completion"]) == set(h["completion"])
+    if pose == "known":
+        assert m["pose_error_deg"]["median"] < 1e-3                   # the rotation was given
+    if given:
+        assert m["accuracy"] == 1.0
+
+
+def test_evaluate_refuses_a_pose_setting_the_method_lacks(trained, tmp_path):
+    out = run("evaluate", "--model", str(trained / "model.hbeo"), "--method", "voxcnn", "--pose", "3dof",
+              "--out", str(tmp_path / "m.json"))
+    assert out.returncode == 2 and "does not take pose '3dof'" in out.stderr
+    assert not (tmp_path / "m.json").exists()
+
+
+def _numbers(m: dict) -> dict:
+    """A metrics dict without what depends on the machine's speed (runtimes) or the file paths."""
+    drop = {"runtime_ms", "model"}
+    out = {k: v for k, v in m.items() if k not in drop}
+    out["per_query"] = {k: v for k, v in m["per_query"].items() if k != "ms"}
+    return out
+
+
+def test_two_runs_with_the_same_seed_give_the_same_numbers(trained, tmp_path):
+    """A second ci run (grids, subspace, rendering, training, evaluation) in a fresh folder gives the
+    same metrics for HBEO and BEO as the first, to the last digit (runtimes aside)."""
+    import os
+    second = tmp_path / "run2"
+    env = dict(os.environ, HBEO_CACHE=str(tmp_path / "cache"))
+    out = run("train", "--dataset", "procedural", "--profile", "ci", "--out", str(second), "--epochs", "1",
+              "--quiet", env=env)
+    assert out.returncode == 0, out.stderr
+    for method, pose in [("hbeo", "3dof"), ("beo", "1dof")]:
+        ms = []
+        for r in (trained, second):
+            res = run("evaluate", "--model", str(r / "model.hbeo"), "--method", method, "--pose", pose,
+                      "--per-class", "1", "--out", str(tmp_path / f"{r.name}_{method}.json"), "--quiet")
+            assert res.returncode == 0, res.stderr
+            ms.append(_numbers(json.loads((tmp_path / f"{r.name}_{method}.json").read_text())))
+        assert ms[0] == ms[1], method

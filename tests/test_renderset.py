@@ -242,7 +242,7 @@ def test_bad_inputs(ds, tmp_path):
 
 def test_settings_from_profile_round_trip():
     s = RenderSettings.from_profile("cpu", sampler="upright", seed=None)
-    assert s.image_size == (160, 120) and s.views_per_object == 24 and s.sampler == "upright" and s.seed == 0
+    assert s.image_size == (80, 60) and s.views_per_object == 20 and s.sampler == "upright" and s.seed == 0
     assert RenderSettings.from_dict(json.loads(json.dumps(s.to_dict()))) == s
-    assert s.intrinsics == C.Intrinsics.kinect(160, 120)
+    assert s.intrinsics == C.Intrinsics.kinect(80, 60)
     assert config.get_profile("ci").views_per_object == RenderSettings.from_profile("ci").views_per_object
