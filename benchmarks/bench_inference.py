@@ -30,6 +30,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--profile", default="full")
     ap.add_argument("--repeat", type=int, default=50)
+    ap.add_argument("--recenter", action="store_true", help="turn every view to the object (resampling path)")
     args = ap.parse_args()
     prof = config.get_profile(args.profile)
     with warnings.catch_warnings():
@@ -43,8 +44,9 @@ def main():
     rs = RenderSettings.from_profile(prof)
     K = rs.intrinsics
     net = HBEONet(NetConfig(image_size=rs.image_size, n_coeffs=sub.dim_, conv_channels=tuple(prof.conv_channels),
-                            fc=tuple(prof.fc)))
-    model = HBEO(net, sub, K, tr.classes, {"render": rs.to_dict()})
+                            fc=tuple(prof.fc), kernel=prof.kernel))
+    # as fit_model writes it: the model's own camera, no re-centring (--recenter is an option)
+    model = HBEO(net, sub, K, tr.classes, {"render": rs.to_dict(), "recenter": args.recenter})
     Rs, ts = rs.view_sampler.sample(32, np.random.default_rng(0))
     with Renderer(K) as r:
         depth = r.render_many(record_mesh(ds.records("test")[0]), Rs, ts)
@@ -54,8 +56,9 @@ def main():
     for i in range(args.repeat):
         stages.append(model.predict(depth[i % 32], K).timing_ms)
     med = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
-    print(f"{prof.name} network, {net.n_params():,} parameters, {K.width}x{K.height}, subspace dim {sub.dim_} "
-          f"({name}), torch threads {torch.get_num_threads()}")
+    print(f"{prof.name} network, {net.n_params():,} parameters, {prof.kernel}x{prof.kernel} kernels, "
+          f"{K.width}x{K.height}, subspace dim {sub.dim_} ({name}), recenter {args.recenter}, "
+          f"torch threads {torch.get_num_threads()}")
     print("batch 1, median ms: " + ", ".join(f"{k} {v:.2f}" for k, v in med.items())
           + f"  (target <= 10 ms; ratio {med['total'] / 10:.2f})")
     t = time.perf_counter()

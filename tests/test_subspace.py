@@ -146,3 +146,13 @@ def test_run_gridsets_reads_what_it_wrote(tmp_path, monkeypatch):
     assert (tmp_path / "grids_train.npz").exists() and len(first["test"]) == 30
     again = run_gridsets("procedural", "ci", tmp_path, progress=False)
     assert np.array_equal(first["train"].grids, again["train"].grids)
+
+
+def test_reconstruct_equals_the_dense_product(fitted):
+    """reconstruct skips the basis rows that are all zero; the answer is W o' exactly."""
+    rng = np.random.default_rng(0)
+    c = rng.normal(size=(4, fitted.dim_)).astype(np.float32)
+    dense = (c @ fitted.basis_.T).reshape(4, 30, 30, 30)
+    assert np.allclose(fitted.reconstruct(c), dense, atol=1e-5)
+    assert np.array_equal(fitted.reconstruct(c, threshold=0.1), dense >= 0.1) or \
+        np.abs(dense - 0.1).min() < 1e-5              # only a value at the threshold itself could differ
