@@ -62,7 +62,7 @@ from . import conventions as C
 from .atomic import atomic_file
 from .errors import DataError
 from .partial import iter_partial
-from .poses import uniform_so3
+from .poses import super_fibonacci, uniform_so3
 from .subspace import ObjectSubspace
 
 FORMAT_VERSION = 1
@@ -74,9 +74,6 @@ SCORES = ("paper", "joint")
 #: spacing 9.6 deg mean / 11.6 max, a random rotation lies 6.0 deg (mean) / 10.5 (max) from it
 DEFAULT_SO3_GRID = 8192
 
-# super-Fibonacci constants (Alexa 2022): phi = sqrt(2), psi^4 = psi + 4
-_SF_PHI = np.sqrt(2.0)
-_SF_PSI = 1.533751168755204288118041
 
 
 def so3_grid(n: int) -> np.ndarray:
@@ -90,17 +87,7 @@ def so3_grid(n: int) -> np.ndarray:
     n = int(n)
     if n < 1:
         raise ValueError(f"the SO(3) grid needs at least one rotation, got {n}")
-    s = np.arange(n) + 0.5
-    t = s / n
-    r, R = np.sqrt(t), np.sqrt(1.0 - t)
-    a, b = 2 * np.pi * s / _SF_PHI, 2 * np.pi * s / _SF_PSI
-    q = np.stack([r * np.sin(a), r * np.cos(a), R * np.sin(b), R * np.cos(b)], axis=1)   # (x, y, z, w)
-    x, y, z, w = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
+    return super_fibonacci(n)
 
 
 def grid_spacing(Rs: np.ndarray, n_probe: int = 20000, seed: int = 0) -> dict:

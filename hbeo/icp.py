@@ -49,6 +49,7 @@ from scipy.spatial import cKDTree
 from . import conventions as C
 from .atomic import atomic_file
 from .errors import DataError
+from .poses import super_fibonacci
 
 FORMAT_VERSION = 1
 POSES = ("3dof", "1dof")
@@ -59,23 +60,8 @@ _PATIENCE, _REL_GAIN = 3, 1e-3     # an init stops after 3 iterations without a 
 
 def super_fibonacci_rotations(n: int) -> np.ndarray:
     """n rotation matrices (n, 3, 3) spread near-uniformly over SO(3), deterministic
-    (super-Fibonacci spirals, Alexa, CVPR 2022)."""
-    if n < 1:
-        raise ValueError(f"need at least one rotation, got n={n}")
-    phi, psi = np.sqrt(2.0), 1.533751168755204288118041
-    s = np.arange(n) + 0.5
-    r, R = np.sqrt(s / n), np.sqrt(1.0 - s / n)
-    a, b = 2 * np.pi * s / phi, 2 * np.pi * s / psi
-    x, y, z, w = r * np.sin(a), r * np.cos(a), R * np.sin(b), R * np.cos(b)
-    return _quat_to_matrix(w, x, y, z)
-
-
-def _quat_to_matrix(w, x, y, z) -> np.ndarray:
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
+    (:func:`hbeo.poses.super_fibonacci`)."""
+    return super_fibonacci(n)
 
 
 def _rot_z(angles) -> np.ndarray:

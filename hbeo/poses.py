@@ -12,16 +12,37 @@ import numpy as np
 SAMPLERS = ("so3", "upright")
 
 
-def uniform_so3(n: int, rng: np.random.Generator) -> np.ndarray:
-    """n rotation matrices (n, 3, 3) uniform (Haar) on SO(3): normalized Gaussian quaternions."""
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
+def quaternion_to_matrix(w, x, y, z) -> np.ndarray:
+    """Unit quaternions (arrays of any matching shape S, scalar first) -> rotation matrices (S, 3, 3)."""
     return np.stack([
         np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
         np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
+    ], axis=-2)
+
+
+def uniform_so3(n: int, rng: np.random.Generator) -> np.ndarray:
+    """n rotation matrices (n, 3, 3) uniform (Haar) on SO(3): normalized Gaussian quaternions."""
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return quaternion_to_matrix(*q.T)
+
+
+#: super-Fibonacci constants (Alexa, CVPR 2022): phi = sqrt(2), psi^4 = psi + 4
+_SF_PHI, _SF_PSI = np.sqrt(2.0), 1.533751168755204288118041
+
+
+def super_fibonacci(n: int) -> np.ndarray:
+    """n rotation matrices (n, 3, 3) spread near-uniformly over SO(3), deterministic, any n: the
+    super-Fibonacci spiral (Alexa, CVPR 2022). Sample i: s = i + 1/2, r = sqrt(s/n), R = sqrt(1 - s/n),
+    quaternion (x, y, z, w) = (r sin(2 pi s / phi), r cos(..), R sin(2 pi s / psi), R cos(..))."""
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"need at least one rotation, got n={n}")
+    s = np.arange(n) + 0.5
+    r, R = np.sqrt(s / n), np.sqrt(1.0 - s / n)
+    a, b = 2 * np.pi * s / _SF_PHI, 2 * np.pi * s / _SF_PSI
+    return quaternion_to_matrix(R * np.cos(b), r * np.sin(a), r * np.cos(a), R * np.sin(b))
 
 
 def upright(yaw: np.ndarray, elevation: np.ndarray) -> np.ndarray:
