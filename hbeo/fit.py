@@ -50,7 +50,8 @@ class ViewArrays(Dataset):
             sh = load_shard(path)
             d, R = sh["depth"].astype(np.float32), sh["rotation"].astype(np.float64)
             if opts.recenter or opts.ref_distance:
-                for i in range(len(d)):
+                for i in np.flatnonzero((d > 0).reshape(len(d), -1).any(1)):
+                    # views that show nothing (a handful of degenerate grids seen edge-on) stay empty
                     v = to_model_view(d[i], K, K, recenter=opts.recenter, ref_distance=opts.ref_distance)
                     d[i], R[i] = v.depth, v.Q.T @ R[i]
             depth.append(d.astype(np.float16))

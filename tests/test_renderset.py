@@ -246,3 +246,22 @@ def test_settings_from_profile_round_trip():
     assert RenderSettings.from_dict(json.loads(json.dumps(s.to_dict()))) == s
     assert s.intrinsics == C.Intrinsics.kinect(80, 60)
     assert config.get_profile("ci").views_per_object == RenderSettings.from_profile("ci").views_per_object
+
+
+def test_view_arrays_keep_views_that_show_nothing(rendered, monkeypatch):
+    """A view showing nothing (degenerate grids seen edge-on do that) stays an empty image with its
+    pose when views are re-centred, instead of stopping the training set."""
+    from hbeo import fit
+    real = fit.load_shard
+
+    def one_empty(path):
+        sh = real(path)
+        sh["depth"][0] = 0
+        return sh
+
+    monkeypatch.setattr(fit, "load_shard", one_empty)
+    plain = fit.ViewArrays(rendered, fit.ViewOptions(), progress=False)
+    turned = fit.ViewArrays(rendered, fit.ViewOptions(recenter=True, ref_distance=1.7), progress=False)
+    assert not plain.depth[0].any() and not turned.depth[0].any()
+    assert np.array_equal(turned.rotation[0], plain.rotation[0])
+    assert turned.depth[1].any() and not np.array_equal(turned.rotation[1], plain.rotation[1])
