@@ -27,14 +27,16 @@ def to_markdown(df: pd.DataFrame, floatfmt: str = "{:.1f}", index: bool = False)
     """A GitHub Markdown table (no extra dependency); floats formatted with ``floatfmt``."""
     d = df.reset_index() if index else df
 
-    def cell(v):
+    def cell(v, col):
         if isinstance(v, (float, np.floating)):
-            return "–" if not np.isfinite(v) else floatfmt.format(v)
+            if not np.isfinite(v):
+                return "–"
+            return str(int(v)) if col == "queries" else floatfmt.format(v)
         return str(v)
 
     head = "| " + " | ".join(map(str, d.columns)) + " |"
     rule = "|" + "|".join(" ---: " if pd.api.types.is_numeric_dtype(d[c]) else " --- " for c in d.columns) + "|"
-    rows = ["| " + " | ".join(cell(v) for v in r) + " |" for r in d.itertuples(index=False)]
+    rows = ["| " + " | ".join(cell(v, c) for v, c in zip(r, d.columns)) + " |" for r in d.itertuples(index=False)]
     return "\n".join([head, rule, *rows])
 
 

@@ -47,6 +47,7 @@ def test_table1_has_reproduced_and_reported_rows_and_skips_given_class(evals):
     assert list(t.setting.unique()) == ["known", "1dof", "3dof"]            # paper order
     md = tables.to_markdown(t)
     assert md.count("\n") == len(t) + 1 and "| reported |" in md
+    assert md.splitlines()[-1].endswith("| 80.0 | 40 |")              # query counts stay integers
 
 
 def test_pose_completion_runtime_tables(evals):
