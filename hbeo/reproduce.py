@@ -31,7 +31,8 @@ EVAL_PER_CLASS: dict[str, dict[str, int | None]] = {
     "cpu": {"default": None, "beo/1dof": 10, "beo/3dof": 1},
     "full": {"default": None, "beo/1dof": 20, "beo/3dof": 5},
 }
-#: The evaluations of a run, in the order the notebooks show them: (method, pose, given class).
+#: The evaluations of a run, in the order the notebooks show them: (method, pose); which of them get
+#: the true class is hbeo.methods.GIVEN_CLASS.
 EVALUATIONS = (("hbeo", "3dof"), ("beo", "known"), ("beo", "1dof"), ("voxcnn", "known"), ("beo", "3dof"),
                ("icp", "3dof"))
 SEED = 0
