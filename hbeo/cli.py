@@ -150,7 +150,8 @@ def cmd_train(args) -> int:
     ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
     model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
-                            view=view, seed=args.seed, out_name=args.name, progress=not args.quiet, loss=weights)
+                            view=view, seed=args.seed, out_name=args.name, progress=not args.quiet, loss=weights,
+                            augment_roll=args.augment_roll)
     print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
           f"{model.subspace.dim_} coefficients)")
     return 0
@@ -268,10 +269,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
-    p.add_argument("--rotation", choices=("axis_angle", "6d"), default="axis_angle",
-                   help="pose output: the paper's axis-angle (default) or the continuous 6-D representation")
+    p.add_argument("--rotation", choices=("axis_angle", "6d", "bins"), default="axis_angle",
+                   help="pose output: the paper's axis-angle (default), the continuous 6-D representation, "
+                        "or a distribution over a grid of rotations (bins)")
     p.add_argument("--normalize", choices=("none", "center"), default="none",
                    help="depth input: metres as rendered (paper, default) or centred on the object's median depth")
+    p.add_argument("--augment-roll", action="store_true",
+                   help="roll each training view by a random angle about the optical axis every epoch (exact)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=float, help="distance-insensitive input: zoom to this object distance (m)")
     p.add_argument("--seed", type=int, default=0)

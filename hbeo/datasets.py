@@ -246,8 +246,13 @@ class Vox30Dataset(Dataset):
                           f"({', '.join(f'{s}/{n}' for s, _, n in self.skipped)})", stacklevel=2)
 
     def _fingerprint_text(self) -> str:
-        st = self.path.stat()
-        return f"vox30 {self.path.resolve()} {st.st_size} {st.st_mtime_ns}"
+        # the file's content, not its path or time: a copy of the same grids (another checkout, a
+        # refreshed mount) keeps its caches and rendered sets
+        h = hashlib.sha256()
+        with open(self.path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        return f"vox30 sha256={h.hexdigest()}"
 
 
 DATASETS = ("procedural", "modelnet10", "modelnet10-vox30")

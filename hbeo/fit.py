@@ -17,6 +17,7 @@ from torch.utils.data import Dataset, Subset
 from tqdm.auto import tqdm
 
 from . import config
+from .augment import RollAugment
 from .conventions import rotation_to_axis_angle
 from .model import HBEO
 from .net import LossWeights, NetConfig
@@ -83,10 +84,12 @@ class ViewArrays(Dataset):
 def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_angle", normalization: str = "none",
               view: ViewOptions | None = None, val_fraction: float = 0.1, seed: int = 0,
               out_name: str = "model.hbeo", progress: bool = True,
-              loss: LossWeights | None = None) -> tuple[HBEO, Path]:
+              loss: LossWeights | None = None, augment_roll: bool = False) -> tuple[HBEO, Path]:
     """Train on ``run/render_train`` with ``run/subspace.npz``; writes ``run/<out_name>`` and
     returns the model and its path. Checkpoints go to ``run/train_<stem>/`` (resumable).
-    ``loss``: the weights gamma_c, gamma_o, gamma_p of the paper's loss (default 1, 1, 1)."""
+    ``loss``: the weights gamma_c, gamma_o, gamma_p of the paper's loss (default 1, 1, 1).
+    ``augment_roll``: roll every training view by a random angle about the optical axis each
+    epoch (:mod:`hbeo.augment`; exact, for uniform SO(3) views; not in the paper)."""
     run = Path(run)
     prof = config.get_profile(profile)
     view = view or ViewOptions()
@@ -104,10 +107,13 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
                      progress=progress, warmup_steps=min(100, max(1, len(tr_idx) // prof.batch_size)),
                      loss=loss or LossWeights())
-    net = train(cfg, Subset(data, tr_idx), Subset(data, va_idx), run / f"train_{Path(out_name).stem}", tc)
+    train_set = Subset(data, tr_idx)
+    if augment_roll:
+        train_set = RollAugment(train_set, m.settings.intrinsics)
+    net = train(cfg, train_set, Subset(data, va_idx), run / f"train_{Path(out_name).stem}", tc)
     settings = {"object_size": m.settings.object_size, "recenter": view.recenter, "ref_distance": view.ref_distance,
                 "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std, "render": m.settings.to_dict(),
-                "profile": prof.name}
+                "profile": prof.name, "augment_roll": augment_roll}
     model = HBEO(net.cpu(), sub, m.settings.intrinsics, m.classes, settings)
     return model, model.save(run / out_name)
 

@@ -22,7 +22,7 @@ from . import __version__
 from .atomic import atomic_file
 from .conventions import Intrinsics, rotation_to_axis_angle
 from .errors import DataError
-from .net import HBEONet, NetConfig, pose_to_matrix
+from .net import HBEONet, NetConfig
 from .preprocess import to_model_view
 from .subspace import ObjectSubspace
 
@@ -65,7 +65,8 @@ class HBEO:
 
     def __init__(self, net: HBEONet, subspace: ObjectSubspace, intrinsics: Intrinsics, classes,
                  settings: dict | None = None):
-        self.net = net.eval()
+        # channels_last: oneDNN's fast convolution layout on CPU (~1.7x faster at 320x240)
+        self.net = net.eval().to(memory_format=torch.channels_last)
         self.subspace = subspace
         self.intrinsics = intrinsics
         self.classes = tuple(classes)
@@ -113,7 +114,7 @@ class HBEO:
         return cls(net, sub, Intrinsics(*blob["intrinsics"]), blob["classes"], blob["settings"])
 
     # ------------------------------------------------------------ inference
-    @torch.no_grad()
+    @torch.inference_mode()
     def predict(self, depth, intrinsics: Intrinsics, mask=None) -> Prediction:
         """Depth (H, W) or (B, H, W), metres, 0 = none, seen by ``intrinsics`` -> :class:`Prediction`.
 
@@ -129,11 +130,12 @@ class HBEO:
         views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s["recenter"],
                                ref_distance=s["ref_distance"]) for d, m in zip(batch, masks)]
         x = torch.from_numpy(np.stack([v.depth for v in views])[:, None])
+        x = x.contiguous(memory_format=torch.channels_last)
         t1 = time.perf_counter()
         out = self.net(x)
         t2 = time.perf_counter()
         probs = torch.softmax(out["logits"], dim=1).numpy()
-        R_virtual = pose_to_matrix(out["pose"].double(), self.net.cfg.rotation).numpy()
+        R_virtual = self.net.pose_matrix(out["pose"].double()).numpy()
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
         coeffs = out["coeffs"].numpy().astype(np.float64)

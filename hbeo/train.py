@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 
 from .atomic import atomic_file
 from .conventions import geodesic_deg
-from .net import HBEONet, LossWeights, NetConfig, hbeo_loss, pose_to_matrix
+from .net import HBEONet, LossWeights, NetConfig, hbeo_loss
 
 CHECKPOINT = "checkpoint.pt"
 LOG = "train_log.csv"
@@ -73,6 +73,11 @@ def _to(batch: dict, device) -> dict:
     return {k: (v.to(device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
 
 
+def _grid(net: HBEONet):
+    """The rotation-bin grid (N, 3, 3) of a ``bins`` network, else None."""
+    return getattr(net, "bin_rotations", None)
+
+
 @torch.no_grad()
 def evaluate_batches(net: HBEONet, loader, device, coeff_scale, weights: LossWeights) -> dict:
     """Mean loss parts, accuracy and median geodesic pose error (degrees) over a loader."""
@@ -81,14 +86,14 @@ def evaluate_batches(net: HBEONet, loader, device, coeff_scale, weights: LossWei
     for batch in loader:
         batch = _to(batch, device)
         out = net(batch["depth"])
-        loss, parts = hbeo_loss(out, batch, net.cfg, weights, coeff_scale)
+        loss, parts = hbeo_loss(out, batch, net.cfg, weights, coeff_scale, _grid(net))
         b = len(batch["label"])
         sums["loss"] += loss.item() * b
         for k, v in parts.items():
             sums[k] += v * b
         n += b
         correct += int((out["logits"].argmax(1) == batch["label"]).sum())
-        R = pose_to_matrix(out["pose"].float(), net.cfg.rotation).cpu().numpy()
+        R = net.pose_matrix(out["pose"].float()).cpu().numpy()
         errors.append(geodesic_deg(R, batch["rotation"].cpu().numpy()))
     net.train()
     if n == 0:
@@ -157,7 +162,7 @@ def train(net_cfg: NetConfig, train_set, val_set, out_dir, cfg: TrainConfig | No
                 g["lr"] = lr_at(step, total_steps, cfg)
             with torch.autocast(device.type, enabled=use_amp):
                 outp = net(batch["depth"].contiguous(memory_format=torch.channels_last))
-                loss, parts = hbeo_loss(outp, batch, net_cfg, cfg.loss, scale)
+                loss, parts = hbeo_loss(outp, batch, net_cfg, cfg.loss, scale, _grid(net))
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             scaler.unscale_(opt)

@@ -51,6 +51,23 @@ def test_vox30_matches_official_split_and_skips_empty_grids(vox30_file):
     assert r.id == "chair_0001" and r.grid().shape == (30, 30, 30) and r.mesh() is None
 
 
+def _tiny_vox30(path, fill):
+    X = np.zeros((2, 30, 30, 30), np.uint8)
+    X[:, 10:20, 10:20, 10:fill] = 1
+    np.savez(path, X_train=X, y_train=np.array([0, 1]), names_train=np.array(["a_1", "b_1"]),
+             X_test=X[:1], y_test=np.array([1]), names_test=np.array(["b_2"]), classes=np.array(["a", "b"]))
+    return path
+
+
+def test_vox30_fingerprint_follows_content_not_path_or_time(tmp_path):
+    one = _tiny_vox30(tmp_path / "one.npz", 20)
+    (tmp_path / "copy").mkdir()
+    copy = shutil.copy(one, tmp_path / "copy" / "one.npz")
+    fp = datasets.Vox30Dataset(one).fingerprint()
+    assert datasets.Vox30Dataset(copy).fingerprint() == fp        # other folder, other mtime
+    assert datasets.Vox30Dataset(_tiny_vox30(tmp_path / "two.npz", 21)).fingerprint() != fp
+
+
 def test_vox30_missing_or_broken_file(tmp_path):
     with pytest.raises(MissingDataError, match="HBEO_VOX30"):
         datasets.Vox30Dataset(tmp_path / "nope.npz")

@@ -4,7 +4,7 @@ import torch
 
 from hbeo import conventions as C
 from hbeo.net import (HBEONet, LossWeights, NetConfig, axis_angle_to_matrix, hbeo_loss, matrix_to_sixd,
-                      normalize_depth, pose_to_matrix, sixd_to_matrix)
+                      bin_cosines, bin_targets, normalize_depth, pose_to_matrix, sixd_to_matrix)
 from hbeo.poses import uniform_so3
 
 
@@ -60,3 +60,58 @@ def test_bad_configs():
         NetConfig(rotation="euler")
     with pytest.raises(ValueError, match="four convolutions"):
         NetConfig(conv_channels=(8, 8))
+
+
+def _log_target(R, grid, sigma_deg=10.0):
+    """Logits whose softmax is bin_targets(R, grid, sigma_deg)."""
+    return -0.5 * (torch.acos(bin_cosines(R, grid)) / np.radians(sigma_deg)) ** 2
+
+
+def _tiny(**kw):
+    return NetConfig(image_size=(32, 24), n_classes=3, n_coeffs=4, conv_channels=(4, 4, 4, 4), fc=(8, 8, 8), **kw)
+
+
+def test_bins_decode_a_peaked_distribution_to_its_rotation_off_the_grid():
+    net = HBEONet(_tiny(rotation="bins", rotation_bins=2048, bin_sigma_deg=10.0))
+    grid = net.bin_rotations.double()
+    R = torch.tensor(uniform_so3(20, np.random.default_rng(3)))
+    # logits = log of the smoothed target: the decoded rotation must come back near R, closer than
+    # the nearest grid rotation alone gets (the refinement works between bins)
+    logits = _log_target(R, grid)
+    M = net.pose_matrix(logits)
+    err = C.geodesic_deg(M.numpy(), R.numpy())
+    nearest = np.degrees(np.arccos(bin_cosines(R, grid).max(1).values.numpy()))
+    assert err.max() < 3.0 and err.mean() < nearest.mean() / 3
+    assert torch.allclose(M @ M.transpose(1, 2), torch.eye(3, dtype=M.dtype).expand(20, 3, 3), atol=1e-9)
+    assert torch.allclose(torch.det(M), torch.ones(20, dtype=M.dtype))
+
+
+def test_bins_keep_the_stronger_of_two_modes():
+    net = HBEONet(_tiny(rotation="bins", rotation_bins=1024))
+    grid = net.bin_rotations.double()
+    R = torch.tensor(uniform_so3(1, np.random.default_rng(4)))
+    flip = torch.tensor([[-1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]], dtype=R.dtype)   # 180 deg about z
+    t = 0.6 * bin_targets(R, grid, 10.0) + 0.4 * bin_targets(R @ flip, grid, 10.0)
+    M = net.pose_matrix(torch.log(t))
+    assert C.geodesic_deg(M.numpy(), R.numpy())[0] < 6.0   # a regression would land ~90 deg from both
+
+
+def test_bins_loss_is_lowest_at_the_truth_and_needs_the_grid():
+    cfg = _tiny(rotation="bins", rotation_bins=512)
+    net = HBEONet(cfg)
+    R = torch.tensor(uniform_so3(4, np.random.default_rng(5)), dtype=torch.float32)
+    batch = {"label": torch.tensor([0, 1, 2, 0]), "rotation": R, "coeffs": torch.zeros(4, 4)}
+    base = {"logits": torch.zeros(4, 3), "coeffs": torch.zeros(4, 4)}
+    good = dict(base, pose=_log_target(R, net.bin_rotations))
+    wrong = dict(base, pose=_log_target(R.flip(0), net.bin_rotations))
+    _, p_good = hbeo_loss(good, batch, cfg, grid=net.bin_rotations)
+    _, p_wrong = hbeo_loss(wrong, batch, cfg, grid=net.bin_rotations)
+    _, p_flat = hbeo_loss(dict(base, pose=torch.zeros(4, 512)), batch, cfg, grid=net.bin_rotations)
+    assert p_good["pose"] < p_flat["pose"] < p_wrong["pose"]
+    assert p_flat["pose"] == pytest.approx(np.log(512), rel=1e-4)
+    with pytest.raises(ValueError, match="grid"):
+        hbeo_loss(good, batch, cfg)
+    with pytest.raises(ValueError, match="pose_matrix"):
+        pose_to_matrix(good["pose"], "bins")
+    assert net(torch.rand(2, 1, 24, 32))["pose"].shape == (2, 512)
+    assert "bin_rotations" not in net.state_dict()
