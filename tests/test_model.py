@@ -76,3 +76,14 @@ def test_to_mesh_places_the_completed_shape_in_the_camera_frame(model):
     mesh = model.to_mesh(p)
     assert np.allclose(mesh.bounds.mean(0), p.translation[0], atol=0.35 * p.scale[0])
     assert mesh.extents.max() <= 1.2 * model.settings["object_size"] * p.scale[0]
+
+
+def test_rotation_bins_model_round_trip(model, tmp_path):
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=model.subspace.dim_, conv_channels=(4, 4, 4, 4),
+                            fc=(8, 8, 8), rotation="bins", rotation_bins=256))
+    m = HBEO(net, model.subspace, model.intrinsics, model.classes, model.settings)
+    back = HBEO.load(m.save(tmp_path / "bins.hbeo"))
+    K = Intrinsics.kinect(64, 48)
+    a, b = m.predict(blob_depth(K), K), back.predict(blob_depth(K), K)
+    assert np.allclose(a.rotation, b.rotation) and back.net.cfg.rotation == "bins"
+    assert np.allclose(a.rotation[0] @ a.rotation[0].T, np.eye(3), atol=1e-6)

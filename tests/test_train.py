@@ -59,3 +59,24 @@ def test_resume_refuses_another_network(tmp_path):
     other = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=5, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16))
     with pytest.raises(ValueError, match="another network configuration"):
         train(other, Toy(16, 0), Toy(8, 1), tmp_path, tc)
+
+
+class ToyPose(Toy):
+    """The blob's quadrant fixes both the class and the rotation (one of three)."""
+
+    def __init__(self, n, seed):
+        super().__init__(n, seed)
+        fixed = uniform_so3(3, np.random.default_rng(42)).astype(np.float32)
+        self.R = fixed[self.labels]
+
+
+def test_rotation_bins_head_learns_a_pose_and_resumes_exactly(tmp_path):
+    cfg = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=4, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16),
+                    rotation="bins", rotation_bins=512)
+    tr, va = ToyPose(96, 0), ToyPose(48, 1)
+    tc = TrainConfig(epochs=4, batch_size=16, lr=1e-2, warmup_steps=2, progress=False, loss=LossWeights(coeffs=0.1))
+    full = train(cfg, tr, va, tmp_path / "a", tc)
+    log = pd.read_csv(tmp_path / "a" / LOG)
+    assert log.val_pose_median_deg.iloc[-1] < 20 < log.val_pose_median_deg.iloc[0]   # chance ~126 degrees
+    train(cfg, tr, va, tmp_path / "b", tc, stop_after_epoch=2)
+    assert torch.equal(weights(full), weights(train(cfg, tr, va, tmp_path / "b", tc)))
