@@ -72,19 +72,22 @@ def check_depth(depth, mask=None, name: str = "depth") -> np.ndarray:
         raise ValueError(f"{name} must be a 2-D image, got shape {d.shape}")
     if d.dtype.kind not in "uif":
         raise ValueError(f"{name} has dtype {d.dtype}; expected numbers")
-    d = d.astype(np.float64)
-    if np.isnan(d).all():
-        raise ValueError(f"{name} is all NaN")
-    d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
+    valid = d > 0                                   # False for NaN
+    if d.dtype.kind == "f":
+        valid &= np.isfinite(d)
     if mask is not None:
         m = np.asarray(mask)
         if m.shape != d.shape:
             raise ValueError(f"mask is {m.shape[1] if m.ndim > 1 else '?'}x{m.shape[0]} but {name} is "
                              f"{d.shape[1]}x{d.shape[0]}")
-        d = np.where(m.astype(bool), d, 0.0)
-    if not (d > 0).any():
+        valid &= m.astype(bool)
+    if not valid.any():
+        if d.dtype.kind == "f" and np.isnan(d).all():
+            raise ValueError(f"{name} is all NaN")
         raise ValueError(f"{name} has no valid pixels (all zero, NaN or masked out)")
-    return d
+    out = np.zeros(d.shape)
+    np.copyto(out, d, where=valid)
+    return out
 
 
 def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, recenter: bool = True,
@@ -96,9 +99,13 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
                          f"{K_user.width}x{K_user.height}")
     pts, _ = backproject(d, K_user)
     center = np.median(pts, axis=0)
-    Q = look_at(center) if recenter else np.eye(3)
-    local = pts @ Q                                # virtual frame
-    lateral = np.sqrt(2 * np.mean(np.sum((local[:, :2] - np.median(local[:, :2], axis=0)) ** 2, axis=1)))
+    if recenter:
+        Q = look_at(center)
+        local = pts[:, :2] @ Q[:2, :2] + pts[:, 2:] * Q[2, :2]    # virtual frame, x and y only
+        mid = np.median(local, axis=0)
+    else:                                          # the virtual frame is the camera's
+        Q, local, mid = np.eye(3), pts[:, :2], center[:2]
+    lateral = np.sqrt(2 * np.mean(np.sum((local - mid) ** 2, axis=1)))
     dist = float(np.linalg.norm(center) + lateral)   # the centre lies about one radius behind the surface
     zoom = dist / ref_distance if ref_distance else 1.0
     if not recenter and zoom == 1.0 and K_user == K_model:
