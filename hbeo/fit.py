@@ -106,7 +106,8 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
                     normalization=normalization)
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
                      progress=progress, warmup_steps=min(100, max(1, len(tr_idx) // prof.batch_size)),
-                     loss=loss or LossWeights())
+                     loss=loss or LossWeights(), data={"augment_roll": augment_roll, "recenter": view.recenter,
+                                                      "ref_distance": view.ref_distance})
     train_set = Subset(data, tr_idx)
     if augment_roll:
         train_set = RollAugment(train_set, m.settings.intrinsics)

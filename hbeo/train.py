@@ -44,6 +44,7 @@ class TrainConfig:
     device: str = "auto"            #: "auto", "cpu" or "cuda"
     amp: bool = True                #: mixed precision (CUDA only)
     progress: bool = True
+    data: dict = field(default_factory=dict)   #: how the data was made (e.g. augmentation); checked on resume
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -143,6 +144,11 @@ def train(net_cfg: NetConfig, train_set, val_set, out_dir, cfg: TrainConfig | No
         if ck["net_cfg"] != net_cfg.to_dict():
             raise ValueError(f"{ckpt_path}: checkpoint is for another network configuration; "
                              f"use another output folder or delete it")
+        was = ck.get("train_cfg", {})
+        for key, now in (("loss", cfg.to_dict()["loss"]), ("data", cfg.data)):
+            if key in was and was[key] != now:       # (checkpoints from before "data" existed: not checked)
+                raise ValueError(f"{ckpt_path}: checkpoint was trained with {key} {was[key]}, this run asks "
+                                 f"for {now}; use another output folder (--name) or delete it")
         net.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         scaler.load_state_dict(ck["scaler"])

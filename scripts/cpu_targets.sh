@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The issue-5 target runs: the `cpu` profile on the real ModelNet10 grids, evaluated on the whole
-# test split (908 objects, one view each). Three models: the paper's axis-angle head and the 6-D head
-# under uniform SO(3) views, and the 6-D head under upright views. Writes into results/cpu-modelnet10-vox30*
-# (about 45 min on a 2-core CPU). Usage: bash scripts/cpu_targets.sh [PY]
+# test split (907 usable objects, one view each). Models: the paper's axis-angle head, the 6-D head and the
+# rotation-bins head (plain, with camera-roll augmentation, and with roll augmentation for 20 epochs) under
+# uniform SO(3) views, and the 6-D head under upright views. Writes into results/cpu-modelnet10-vox30*
+# (about 2 h on a 2-core CPU; each model ~20 min per 10 epochs). Usage: bash scripts/cpu_targets.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${1:-.venv/bin/python}
@@ -13,5 +14,11 @@ $PY -m hbeo train --dataset $D --profile cpu --quiet
 $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_axis_angle.json
 $PY -m hbeo train --dataset $D --profile cpu --rotation 6d --name model_6d.hbeo --quiet
 $PY -m hbeo evaluate --model $R/model_6d.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_6d.json
+for opts in "bins:" "bins_roll:--augment-roll" "bins_roll20:--augment-roll --epochs 20"; do
+  name=${opts%%:*}
+  # shellcheck disable=SC2086
+  $PY -m hbeo train --dataset $D --profile cpu --rotation bins ${opts#*:} --name model_$name.hbeo --quiet
+  $PY -m hbeo evaluate --model $R/model_$name.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_$name.json
+done
 $PY -m hbeo train --dataset $D --profile cpu --sampler upright --rotation 6d --name model_6d.hbeo --out $RU --quiet
 $PY -m hbeo evaluate --model $RU/model_6d.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $RU/eval_upright_6d.json

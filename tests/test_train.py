@@ -59,6 +59,13 @@ def test_resume_refuses_another_network(tmp_path):
     other = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=5, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16))
     with pytest.raises(ValueError, match="another network configuration"):
         train(other, Toy(16, 0), Toy(8, 1), tmp_path, tc)
+    # the same network with other loss weights or other data would silently mix two runs
+    with pytest.raises(ValueError, match="trained with loss"):
+        train(CFG, Toy(16, 0), Toy(8, 1), tmp_path, TrainConfig(epochs=1, batch_size=16, progress=False,
+                                                               loss=LossWeights(pose=5.0)))
+    with pytest.raises(ValueError, match="trained with data"):
+        train(CFG, Toy(16, 0), Toy(8, 1), tmp_path, TrainConfig(epochs=1, batch_size=16, progress=False,
+                                                               data={"augment_roll": True}))
 
 
 class ToyPose(Toy):
