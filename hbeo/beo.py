@@ -48,7 +48,6 @@ Pose modes
 from __future__ import annotations
 
 import io
-import json
 import warnings
 from pathlib import Path
 
@@ -59,8 +58,8 @@ from scipy.special import logsumexp
 from threadpoolctl import threadpool_limits
 
 from . import conventions as C
-from .atomic import atomic_file
 from .errors import DataError
+from .npzfile import read_npz, write_npz
 from .partial import iter_partial
 from .poses import super_fibonacci, uniform_so3
 from .subspace import ObjectSubspace
@@ -398,27 +397,15 @@ class BEO:
                 "subspace_fingerprint": getattr(self.subspace, "fingerprint_", None)}
         arrays = dict(weights=self.weights_, means=self.means_, precisions_cholesky=self.precisions_cholesky_,
                       class_prior=self.class_prior_, n_train=self.n_train_,
-                      subspace=np.frombuffer(sub.getvalue(), np.uint8), meta=np.array(json.dumps(meta)))
-        with atomic_file(path) as f:
-            np.savez(f, **arrays)
-        return Path(path)
+                      subspace=np.frombuffer(sub.getvalue(), np.uint8))
+        return write_npz(path, meta, **arrays)
 
     @classmethod
     def load(cls, path) -> "BEO":
         """Read a file written by :meth:`save` (DataError naming the file if it is not one)."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                arrays = {k: z[k] for k in ("weights", "means", "precisions_cholesky", "class_prior", "n_train",
-                                            "subspace")}
-        except FileNotFoundError:
-            raise DataError(path, "no such BEO file") from None
-        except Exception as err:
-            raise DataError(path, f"not a readable BEO file ({type(err).__name__}: {err})") from None
-        if not isinstance(meta, dict) or meta.get("format_version") != FORMAT_VERSION:
-            raise DataError(path, f"BEO format {meta.get('format_version') if isinstance(meta, dict) else '?'}, "
-                                  f"this hbeo reads {FORMAT_VERSION}")
+        meta, arrays = read_npz(path, ("weights", "means", "precisions_cholesky", "class_prior", "n_train",
+                                       "subspace"), "BEO", FORMAT_VERSION)
         try:
             sub = ObjectSubspace.load(io.BytesIO(arrays["subspace"].tobytes()))
         except DataError as err:

@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from . import config, conventions as C
+from .atomic import sha256_file
 from .errors import DataError, MissingDataError
 from .meshio import MESH_SUFFIXES, read_mesh
 
@@ -248,11 +249,7 @@ class Vox30Dataset(Dataset):
     def _fingerprint_text(self) -> str:
         # the file's content, not its path or time: a copy of the same grids (another checkout, a
         # refreshed mount) keeps its caches and rendered sets
-        h = hashlib.sha256()
-        with open(self.path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-        return f"vox30 sha256={h.hexdigest()}"
+        return f"vox30 sha256={sha256_file(self.path)}"
 
 
 DATASETS = ("procedural", "modelnet10", "modelnet10-vox30")

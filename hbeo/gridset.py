@@ -22,6 +22,7 @@ from . import config, conventions as C
 from .atomic import atomic_file
 from .datasets import Dataset, ObjectRecord
 from .errors import DataError
+from .npzfile import read_npz, write_npz
 from .voxel import voxelize
 
 FORMAT_VERSION = 1
@@ -58,26 +59,15 @@ class GridSet:
         path = Path(path)
         meta = dict(self.meta, format_version=FORMAT_VERSION, split=self.split,
                     classes=list(self.classes), resolution=int(self.grids.shape[1]))
-        _atomic_savez(path, packed=_pack(self.grids),
-                      labels=self.labels.astype(np.int64), ids=self.ids.astype(str),
-                      meta=np.array(json.dumps(meta)))
-        return path
+        return write_npz(path, meta, compressed=True, packed=_pack(self.grids),
+                         labels=self.labels.astype(np.int64), ids=self.ids.astype(str))
 
     @classmethod
     def load(cls, path) -> "GridSet":
         """Read a file written by :meth:`save`; :class:`DataError` naming the file if it is not one."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                packed, labels, ids = z["packed"], z["labels"], z["ids"]
-        except FileNotFoundError:
-            raise DataError(path, "no such grid set file") from None
-        except Exception as err:
-            raise DataError(path, f"not a readable grid set ({type(err).__name__}: {err})") from None
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise DataError(path, f"grid set format {meta.get('format_version')} but this hbeo reads "
-                                  f"{FORMAT_VERSION}; rebuild it")
+        meta, a = read_npz(path, ("packed", "labels", "ids"), "grid set", FORMAT_VERSION, "; rebuild it")
+        packed, labels, ids = a["packed"], a["labels"], a["ids"]
         r = int(meta["resolution"])
         grids = np.unpackbits(packed, axis=1, count=r ** 3).astype(bool).reshape(-1, r, r, r)
         return cls(grids, labels, ids, tuple(meta["classes"]), meta["split"], meta)

@@ -40,15 +40,14 @@ Algorithm (all initializations at once, numpy + one :class:`scipy.spatial.cKDTre
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from . import conventions as C
-from .atomic import atomic_file
 from .errors import DataError
+from .npzfile import read_npz, write_npz
 from .poses import super_fibonacci
 
 FORMAT_VERSION = 1
@@ -415,27 +414,16 @@ class ICPBaseline:
         """Write settings, class means and model surface points (.npz) atomically."""
         self._check()
         meta = {"format_version": FORMAT_VERSION, "params": self.get_params(), "classes": list(self.classes_)}
-        with atomic_file(path) as f:
-            np.savez_compressed(f, means=self.means_.astype(np.float32), shapes=np.packbits(self.shapes_),
-                                points=self.model_points_, normals=self.model_normals_,
-                                offsets=self.model_offsets_, meta=np.array(json.dumps(meta)))
-        return Path(path)
+        return write_npz(path, meta, compressed=True, means=self.means_.astype(np.float32),
+                         shapes=np.packbits(self.shapes_), points=self.model_points_, normals=self.model_normals_,
+                         offsets=self.model_offsets_)
 
     @classmethod
     def load(cls, path) -> "ICPBaseline":
         """Read a file written by :meth:`save`; :class:`DataError` naming the file if it is not one."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                arrays = {k: z[k] for k in ("means", "shapes", "points", "normals", "offsets")}
-        except FileNotFoundError:
-            raise DataError(path, "no such ICP baseline file") from None
-        except Exception as err:
-            raise DataError(path, f"not a readable ICP baseline file ({type(err).__name__}: {err})") from None
-        if not isinstance(meta, dict) or meta.get("format_version") != FORMAT_VERSION:
-            got = meta.get("format_version") if isinstance(meta, dict) else None
-            raise DataError(path, f"ICP baseline format {got}, this hbeo reads {FORMAT_VERSION}")
+        meta, arrays = read_npz(path, ("means", "shapes", "points", "normals", "offsets"), "ICP baseline",
+                                FORMAT_VERSION)
         try:
             self = cls(**meta["params"])
             classes = tuple(meta["classes"])
