@@ -11,7 +11,9 @@ construction), ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``
 ``accuracy``                         fraction of queries with the right class
 ``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
                                      ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
-                                     turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`)
+                                     turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`);
+                                     ``within_30``, ``within_30_sym``: fraction of queries within 30
+                                     degrees (Acc@pi/6; a median hides a bimodal error, e.g. flips)
 ``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.metrics`) and
                                      ``empty_fraction`` (queries whose completed grid is empty)
 ``completion_baseline``              the trivial answer "the class's mean training shape" (the
@@ -23,7 +25,7 @@ construction), ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``
 ``runtime_ms``                       ``mean_per_query``, ``median_per_query`` (preprocessing + network +
                                      back-projection, one view per call, after one warm-up call)
 ``per_class``                        {class: {``n``, ``accuracy``, ``pose_mean_deg``,
-                                     ``pose_median_deg``, ``pose_median_sym_deg``, ``edt``,
+                                     ``pose_median_deg``, ``pose_median_sym_deg``, ``pose_within_30``, ``edt``,
                                      ``naive``, ``iou``}}
 ``confusion``                        rows: true class, columns: predicted class (counts)
 ``per_query``                        columns over queries (for distributions): ``class``, ``pred``,
@@ -152,7 +154,8 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
         if m.any():
             per[c] = {"n": int(m.sum()), "accuracy": float(correct[m].mean()),
                       "pose_mean_deg": float(raw[m].mean()), "pose_median_deg": float(np.median(raw[m])),
-                      "pose_median_sym_deg": float(np.median(sym[m])), "edt": float(edt[m].mean()),
+                      "pose_median_sym_deg": float(np.median(sym[m])),
+                      "pose_within_30": float((raw[m] < 30).mean()), "edt": float(edt[m].mean()),
                       "naive": float(nai[m].mean()), "iou": float(io[m].mean())}
     index = {c: i for i, c in enumerate(classes)}
     conf = np.zeros((len(classes), len(classes)), int)
@@ -162,7 +165,8 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
             "sampler": sampler, "noise": bool(noise), "n_objects": n_objects, "n_queries": len(rows),
             "accuracy": float(correct.mean()),
             "pose_error_deg": {"mean": float(raw.mean()), "median": float(np.median(raw)),
-                               "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym))},
+                               "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),
+                               "within_30": float((raw < 30).mean()), "within_30_sym": float((sym < 30).mean())},
             "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
                            "empty_fraction": float((pred.reshape(len(pred), -1).sum(1) == 0).mean())},
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),

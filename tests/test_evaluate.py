@@ -27,6 +27,8 @@ def test_summary_keys_and_values():
     m = summarize(rows, ("chair", "table"), "procedural", "test", 1, 0, "so3", False, 2)
     assert m["accuracy"] == 0.5 and m["n_queries"] == 2
     assert m["pose_error_deg"]["mean"] == 90 and m["pose_error_deg"]["mean_sym"] == 0
+    assert m["pose_error_deg"]["within_30"] == 0.5 and m["pose_error_deg"]["within_30_sym"] == 1.0
+    assert m["per_class"]["table"]["pose_within_30"] == 0 and m["per_class"]["chair"]["pose_within_30"] == 1
     assert m["completion"]["iou"] == 1.0 and m["runtime_ms"]["mean_per_query"] == 3.0
     assert m["per_class"]["table"]["pose_median_deg"] == 180 and m["per_class"]["table"]["pose_median_sym_deg"] == 0
     assert m["confusion"] == [[0, 1], [0, 1]]
