@@ -7,6 +7,7 @@ parameters). The subspace is the paper-sized 344-dimensional basis fitted on the
 grids when ../shared is present, else a procedural one. Also prints batch throughput.
 
 Usage: python benchmarks/bench_inference.py [--profile full] [--repeat 50] [--rotation bins] [--threads N]
+       [--precision bfloat16]
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ def main():
     ap.add_argument("--recenter", action="store_true", help="turn every view to the object (resampling path)")
     ap.add_argument("--rotation", default="axis_angle", help="pose head: axis_angle (paper), 6d or bins")
     ap.add_argument("--threads", type=int, help="torch threads (default: torch's choice)")
+    ap.add_argument("--precision", default="float32", help="float32 or bfloat16 (HBEO.set_precision)")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -50,7 +52,7 @@ def main():
     net = HBEONet(NetConfig(image_size=rs.image_size, n_coeffs=sub.dim_, conv_channels=tuple(prof.conv_channels),
                             fc=tuple(prof.fc), kernel=prof.kernel, rotation=args.rotation))
     # as fit_model writes it: the model's own camera, no re-centring (--recenter is an option)
-    model = HBEO(net, sub, K, tr.classes, {"render": rs.to_dict(), "recenter": args.recenter})
+    model = HBEO(net, sub, K, tr.classes, {"render": rs.to_dict(), "recenter": args.recenter}, args.precision)
     Rs, ts = rs.view_sampler.sample(32, np.random.default_rng(0))
     with Renderer(K) as r:
         depth = r.render_many(record_mesh(ds.records("test")[0]), Rs, ts)
@@ -62,6 +64,7 @@ def main():
     med = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
     print(f"{prof.name} network, {net.n_params():,} parameters, {prof.kernel}x{prof.kernel} kernels, "
           f"{K.width}x{K.height}, subspace dim {sub.dim_} ({name}), recenter {args.recenter}, pose {args.rotation}, "
+          f"{args.precision}, "
           f"torch threads {torch.get_num_threads()}")
     print("batch 1, median ms: " + ", ".join(f"{k} {v:.2f}" for k, v in med.items())
           + f"  (target <= 10 ms; ratio {med['total'] / 10:.2f})")

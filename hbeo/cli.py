@@ -171,7 +171,7 @@ def cmd_predict(args) -> int:
     depth = read_depth(args.depth, args.depth_scale)
     K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(args.mask, depth.shape) if args.mask else None
-    model = HBEO.load(args.model)
+    model = HBEO.load(args.model, precision=args.precision)
     pred = model.predict(depth, K, mask)
     mesh = model.to_mesh(pred) if args.mesh else None     # fails before anything is written
     result = {"model": str(args.model), "depth": str(args.depth), **pred.to_dict(0)}
@@ -189,7 +189,7 @@ def cmd_evaluate(args) -> int:
     from .methods import check_method, load_method
     from .model import HBEO
     pose = check_method(args.method, args.pose)
-    model = HBEO.load(args.model)
+    model = HBEO.load(args.model, precision=args.precision)
     profile = model.settings.get("profile", "cpu")
     ds = _load_dataset(args.dataset, profile)
     method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
@@ -284,6 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_train)
     p = sub.add_parser("predict", help="class, pose and completed shape from one depth image")
     p.add_argument("--model", required=True, help="model file (model.hbeo)")
+    p.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
+                   help="network arithmetic (bfloat16: faster on CPUs with AVX512-BF16, ~99%% class agreement)")
     p.add_argument("--depth", required=True, help="depth image: 16-bit PNG in mm, or float .npy/.tiff in m")
     p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels")
     p.add_argument("--mask", help="object mask image (non-zero = object), same size as the depth")
@@ -294,6 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", help="render a dataset's views, predict and write the metrics JSON")
     p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
                                                   "every method; baselines live beside it)")
+    p.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
+                   help="HBEO's network arithmetic (default float32)")
     p.add_argument("--method", choices=("hbeo", "beo", "icp", "voxcnn"), default="hbeo",
                    help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),

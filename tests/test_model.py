@@ -87,3 +87,18 @@ def test_rotation_bins_model_round_trip(model, tmp_path):
     a, b = m.predict(blob_depth(K), K), back.predict(blob_depth(K), K)
     assert np.allclose(a.rotation, b.rotation) and back.net.cfg.rotation == "bins"
     assert np.allclose(a.rotation[0] @ a.rotation[0].T, np.eye(3), atol=1e-6)
+
+
+def test_bfloat16_inference_stays_close_and_saves_float32(model, tmp_path):
+    K = Intrinsics.kinect(64, 48)
+    a = model.predict(blob_depth(K), K)
+    fast = HBEO.load(model.save(tmp_path / "m.hbeo"), precision="bfloat16")
+    assert fast._net.coeff_head.weight.dtype == torch.bfloat16 and fast.net.coeff_head.weight.dtype == torch.float32
+    b = fast.predict(blob_depth(K), K)
+    assert b.probabilities.dtype == a.probabilities.dtype and np.allclose(a.probabilities, b.probabilities, atol=0.02)
+    assert np.allclose(a.coeffs, b.coeffs, atol=0.05 * np.abs(a.coeffs).max() + 1e-3)
+    back = HBEO.load(fast.save(tmp_path / "again.hbeo"))          # the float32 weights, unrounded
+    assert back.net.coeff_head.weight.dtype == torch.float32
+    assert np.allclose(back.predict(blob_depth(K), K).probabilities, a.probabilities, atol=1e-6)
+    with pytest.raises(ValueError, match="precision"):
+        model.set_precision("float16")
