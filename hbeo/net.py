@@ -16,9 +16,8 @@ projection. Input: a depth image (B, 1, H, W), metres, 0 = no object (see
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import math
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn as nn
