@@ -6,7 +6,8 @@ Keys of the returned dict (stable; the evaluation notebooks and outside checks r
 
 ``method`` (``hbeo``, ``beo``, ``icp``, ``voxcnn``), ``pose`` (``known``, ``1dof``, ``3dof``: what
 the method had to estimate), ``given_class`` (the true class was given: accuracy is then 1 by
-construction), ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
+construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
+the baselines), ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
 ``n_objects``, ``n_queries``
 ``accuracy``                         fraction of queries with the right class
 ``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
@@ -125,7 +126,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
             bar.update(1)
     bar.close()
     out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
-    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, **out}
+    precision = getattr(model, "precision", "float32") if method is None else None
+    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision, **out}
 
 
 def class_mean_grids(subspace) -> dict[str, np.ndarray]:

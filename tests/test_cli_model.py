@@ -39,6 +39,12 @@ def test_predict_on_a_16bit_png(trained, tmp_path):
     assert r["class"] in ("bathtub", "bed", "chair", "desk", "dresser", "monitor", "night_stand", "sofa",
                           "table", "toilet")
     assert len(r["axis_angle"]) == 3 and np.isclose(sum(r["probabilities"]), 1, atol=1e-4)
+    assert r["precision"] == "float32"
+    fast = run("predict", "--model", str(trained / "model.hbeo"), "--depth", str(tmp_path / "d.png"),
+               "--intrinsics", "65.6,65.6,39.5,29.5", "--precision", "bfloat16", "--out", str(tmp_path / "b.json"))
+    assert fast.returncode == 0, fast.stderr
+    b = json.loads((tmp_path / "b.json").read_text())
+    assert b["precision"] == "bfloat16" and np.allclose(b["probabilities"], r["probabilities"], atol=0.05)
 
 
 @pytest.mark.parametrize("what, args, msg", [
@@ -72,7 +78,7 @@ def test_evaluate_writes_the_documented_keys(trained, tmp_path):
         assert key in m
     assert m["n_queries"] == 10 and 0 <= m["accuracy"] <= 1
     assert set(m["completion"]) == {"edt", "naive", "iou", "empty_fraction"}
-    assert m["method"] == "hbeo" and m["pose"] == "3dof" and not m["given_class"]
+    assert m["method"] == "hbeo" and m["pose"] == "3dof" and not m["given_class"] and m["precision"] == "float32"
     assert set(m["completion_baseline"]) == {"predicted_class", "true_class", "true_class_iou_t03"}
     assert len(m["per_query"]["pose_deg"]) == 10
 
@@ -90,7 +96,7 @@ def test_evaluate_baselines_write_the_same_keys(trained, tmp_path, method, pose,
     assert out.returncode == 0, out.stderr
     h, m = json.loads((tmp_path / "h.json").read_text()), json.loads((tmp_path / "m.json").read_text())
     assert set(m) == set(h)
-    assert (m["method"], m["pose"], m["given_class"]) == (method, pose, given)
+    assert (m["method"], m["pose"], m["given_class"]) == (method, pose, given) and m["precision"] is None
     assert m["n_queries"] == 10 and set(m["completion"]) == set(h["completion"])
     if pose == "known":
         assert m["pose_error_deg"]["median"] < 1e-3                   # the rotation was given
