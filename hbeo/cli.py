@@ -190,13 +190,16 @@ def cmd_evaluate(args) -> int:
     from .model import HBEO
     pose = check_method(args.method, args.pose)
     model = HBEO.load(args.model, precision=args.precision)
+    if args.rolls < 1 or (args.rolls > 1 and model.net.cfg.rotation != "bins"):
+        raise ValueError(f"--rolls {args.rolls}: needs a positive count, and more than 1 needs a rotation-bins model "
+                         f"({args.model} has {model.net.cfg.rotation})")
     profile = model.settings.get("profile", "cpu")
     ds = _load_dataset(args.dataset, profile)
     method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
                                                             progress=not args.quiet)
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
                              noise=args.noise, per_class=args.per_class, progress=not args.quiet,
-                             method=method, pose=pose)
+                             method=method, pose=pose, rolls=args.rolls)
     metrics["model"] = str(args.model)
     _write_json(args.out, metrics)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
@@ -298,6 +301,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "every method; baselines live beside it)")
     p.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
                    help="HBEO's network arithmetic (default float32)")
+    p.add_argument("--rolls", type=int, default=1,
+                   help="HBEO test-time augmentation: average over this many camera rolls (bins models; 1 = off)")
     p.add_argument("--method", choices=("hbeo", "beo", "icp", "voxcnn"), default="hbeo",
                    help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),

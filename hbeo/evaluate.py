@@ -7,7 +7,8 @@ Keys of the returned dict (stable; the evaluation notebooks and outside checks r
 ``method`` (``hbeo``, ``beo``, ``icp``, ``voxcnn``), ``pose`` (``known``, ``1dof``, ``3dof``: what
 the method had to estimate), ``given_class`` (the true class was given: accuracy is then 1 by
 construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
-the baselines), ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
+the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines),
+``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
 ``n_objects``, ``n_queries``
 ``accuracy``                         fraction of queries with the right class
 ``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
@@ -58,7 +59,7 @@ def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> 
 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
                    noise: bool = False, per_class: int | None = None, progress: bool = True,
-                   chunk: int = 64, method=None, pose: str | None = None) -> dict:
+                   chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
     Views come from :class:`hbeo.renderset.ObjectViews` with the model's render settings, ``views``
@@ -69,6 +70,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true, rng)`` answers
     each view; ``model`` then only fixes the camera and the views. ``pose``: the baseline's pose
     setting (``known``, ``1dof``, ``3dof``); HBEO always estimates all three degrees of freedom.
+    ``rolls``: HBEO's test-time roll averaging (:meth:`hbeo.model.HBEO.predict`; bins models).
     """
     from .methods import GIVEN_CLASS
     from .renderset import ObjectViews, RenderSettings
@@ -102,9 +104,9 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                     continue          # nothing visible (cannot happen with sane settings; never scored as 0)
                 if method is None:
                     if not warm:      # one untimed call: first-call set-up is not a per-query cost
-                        model.predict(depth, K)
+                        model.predict(depth, K, rolls=rolls)
                         warm = True
-                    p = model.predict(depth, K)
+                    p = model.predict(depth, K, rolls=rolls)
                     pred, R_pred, grid, ms = p.class_names[0], p.rotation[0], p.grids[0], p.timing_ms["total"]
                 else:
                     query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
@@ -127,7 +129,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     bar.close()
     out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
     precision = getattr(model, "precision", "float32") if method is None else None
-    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision, **out}
+    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
+            "rolls": rolls if method is None else None, **out}
 
 
 def class_mean_grids(subspace) -> dict[str, np.ndarray]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import io
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,9 +22,10 @@ import torch
 
 from . import __version__
 from .atomic import atomic_file
+from .augment import roll_depth, roll_matrix
 from .conventions import Intrinsics, rotation_to_axis_angle
 from .errors import DataError
-from .net import HBEONet, NetConfig
+from .net import HBEONet, NetConfig, bin_cosines
 from .preprocess import to_model_view
 from .subspace import ObjectSubspace
 
@@ -83,6 +85,7 @@ class HBEO:
         if tuple(net.cfg.image_size) != (intrinsics.width, intrinsics.height):
             raise ValueError(f"network input {net.cfg.image_size} does not match the camera "
                              f"{intrinsics.width}x{intrinsics.height}")
+        self._roll_perms: dict = {}
         self.set_precision(precision)
 
     def set_precision(self, precision: str) -> "HBEO":
@@ -139,12 +142,20 @@ class HBEO:
 
     # ------------------------------------------------------------ inference
     @torch.inference_mode()
-    def predict(self, depth, intrinsics: Intrinsics, mask=None) -> Prediction:
+    def predict(self, depth, intrinsics: Intrinsics, mask=None, rolls: int = 1) -> Prediction:
         """Depth (H, W) or (B, H, W), metres, 0 = none, seen by ``intrinsics`` -> :class:`Prediction`.
 
         ``mask`` (same shape, bool) selects the object's pixels (default: all pixels > 0).
+        ``rolls`` > 1 (rotation-bins models only): test-time augmentation over that many camera rolls
+        about the optical axis (exact, :mod:`hbeo.augment`), ``rolls`` times the network's cost: the
+        class probabilities and coefficients (roll-invariant) are averaged, and each roll's rotation
+        distribution is turned back and averaged before decoding.
         """
         t0 = time.perf_counter()
+        if int(rolls) != rolls or rolls < 1:
+            raise ValueError(f"rolls must be a positive integer, got {rolls!r}")
+        if rolls > 1 and self.net.cfg.rotation != "bins":
+            raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")
         depth = np.asarray(depth)
         batch = depth[None] if depth.ndim == 2 else depth
         masks = [None] * len(batch) if mask is None else (np.asarray(mask)[None] if np.ndim(mask) == 2 else mask)
@@ -153,13 +164,21 @@ class HBEO:
         s = self.settings
         views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s["recenter"],
                                ref_distance=s["ref_distance"]) for d, m in zip(batch, masks)]
-        x = torch.from_numpy(np.stack([v.depth for v in views])[:, None])
-        x = x.to(PRECISIONS[self.precision]).contiguous(memory_format=torch.channels_last)
+        x = np.stack([v.depth for v in views])
+        angles = [2 * math.pi * k / rolls for k in range(rolls)]
+        x = np.concatenate([x] + [np.stack([roll_depth(d, self.intrinsics, a) for d in x]) for a in angles[1:]])
+        x = torch.from_numpy(x[:, None]).to(PRECISIONS[self.precision]).contiguous(memory_format=torch.channels_last)
         t1 = time.perf_counter()
-        out = {k: v.float() for k, v in self._net(x).items()}
+        out = {k: v.float().view(rolls, len(views), -1) for k, v in self._net(x).items()}
         t2 = time.perf_counter()
-        probs = torch.softmax(out["logits"], dim=1).numpy()
-        R_virtual = self.net.pose_matrix(out["pose"].double()).numpy()
+        probs = torch.softmax(out["logits"], dim=2).mean(0).numpy()
+        if rolls == 1:
+            R_virtual = self.net.pose_matrix(out["pose"][0].double()).numpy()
+        else:
+            p = torch.softmax(out["pose"].double(), dim=2)
+            P = sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(angles)) / rolls
+            R_virtual = self.net.pose_matrix(torch.log(P.clamp_min(1e-300))).numpy()
+        out["coeffs"] = out["coeffs"].mean(0)
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
         coeffs = out["coeffs"].numpy().astype(np.float64)
@@ -173,6 +192,17 @@ class HBEO:
         return Prediction(probs, labels, [self.classes[i] for i in labels], R, rotation_to_axis_angle(R), trans,
                           scale, coeffs, grids, {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
                                                  "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3})
+
+    def _roll_permutation(self, angle: float) -> torch.Tensor:
+        """(N,) index of the grid rotation nearest Rz(angle) G_j for each bin j (cached): a view rolled by
+        ``angle`` sees the object at Rz(angle) R, so its probability for R = G_j sits at that bin."""
+        cache = self._roll_perms
+        key = round(angle, 12)
+        if key not in cache:
+            G = self.net.bin_rotations.float()
+            RG = torch.from_numpy(roll_matrix(angle)).float() @ G
+            cache[key] = torch.cat([bin_cosines(RG[i:i + 512], G).argmax(1) for i in range(0, len(G), 512)])
+        return cache[key]
 
     def to_mesh(self, pred: Prediction, i: int = 0):
         """The completed shape of image ``i`` as a trimesh mesh placed in the user's camera frame

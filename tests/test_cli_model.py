@@ -136,3 +136,10 @@ def test_two_runs_with_the_same_seed_give_the_same_numbers(trained, tmp_path):
             assert res.returncode == 0, res.stderr
             ms.append(_numbers(json.loads((tmp_path / f"{r.name}_{method}.json").read_text())))
         assert ms[0] == ms[1], method
+
+
+def test_evaluate_refuses_roll_averaging_for_a_regression_model(trained, tmp_path):
+    out = run("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--rolls", "4",
+              "--out", str(tmp_path / "m.json"), "--quiet")
+    assert out.returncode == 2 and "rotation-bins model" in out.stderr and out.stderr.strip().count("\n") == 0
+    assert not (tmp_path / "m.json").exists()

@@ -102,3 +102,69 @@ def test_bfloat16_inference_stays_close_and_saves_float32(model, tmp_path):
     assert np.allclose(back.predict(blob_depth(K), K).probabilities, a.probabilities, atol=1e-6)
     with pytest.raises(ValueError, match="precision"):
         model.set_precision("float16")
+
+
+class _RollReader(torch.nn.Module):
+    """Stands in for a trained bins network: finds the direction from a bar's centre to its far tip
+    (the pixels at 1.9 m) and puts its probability on Rz(angle) R0, i.e. it answers like an ideal
+    network whose object is rolled by that angle. Class and coefficients are constant."""
+
+    def __init__(self, net, R0):
+        super().__init__()
+        self.net, self.R0 = net, torch.tensor(R0)
+
+    def forward(self, x):
+        from hbeo.augment import roll_matrix
+        from hbeo.net import bin_targets
+        d = x.float()[:, 0]
+        H, W = d.shape[1:]
+        v, u = torch.meshgrid(torch.arange(H) - (H - 1) / 2, torch.arange(W) - (W - 1) / 2, indexing="ij")
+        Rs = []
+        for img in d:
+            m, tip = (img > 0).float(), (img > 1.8).float()
+            cu, cv = (m * u).sum() / m.sum(), (m * v).sum() / m.sum()
+            tu, tv = (tip * u).sum() / tip.sum(), (tip * v).sum() / tip.sum()
+            a = float(torch.atan2(tv - cv, tu - cu))
+            Rs.append(torch.tensor(roll_matrix(a), dtype=torch.float32) @ self.R0)
+        pose = torch.log(bin_targets(torch.stack(Rs).float(), self.net.bin_rotations, 10.0) + 1e-30)
+        B = len(d)
+        return {"logits": torch.zeros(B, self.net.cfg.n_classes), "pose": pose,
+                "coeffs": torch.zeros(B, self.net.cfg.n_coeffs)}
+
+
+def _bins_model(model, n=2048):
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=model.subspace.dim_, conv_channels=(4, 4, 4, 4),
+                            fc=(8, 8, 8), rotation="bins", rotation_bins=n))
+    return HBEO(net, model.subspace, model.intrinsics, model.classes, {"recenter": False})
+
+
+def test_roll_permutation_finds_the_turned_bin(model):
+    from hbeo.augment import roll_matrix
+    from hbeo.conventions import geodesic_deg
+    m = _bins_model(model)
+    G = m.net.bin_rotations.double().numpy()
+    for a in (0.7, 2.0 * np.pi / 3):
+        turned = roll_matrix(a) @ G
+        assert geodesic_deg(G[m._roll_permutation(a).numpy()], turned).max() < 15      # grid spacing ~17 deg
+        assert np.median(geodesic_deg(G[m._roll_permutation(-a).numpy()], turned)) > 60   # the other way round
+
+
+def test_roll_averaging_turns_each_rolls_distribution_back(model):
+    from hbeo.conventions import geodesic_deg
+    from hbeo.poses import uniform_so3
+    m = _bins_model(model)
+    R0 = uniform_so3(1, np.random.default_rng(7))[0].astype(np.float32)
+    m._net = _RollReader(m.net, R0)
+    K = model.intrinsics
+    d = np.zeros((K.height, K.width))
+    d[10:14, 6:26] = 1.7
+    d[10:14, 22:26] = 1.9                          # the tip points along the image's x axis: angle 0
+    want = R0.astype(np.float64)[None]
+    for rolls in (1, 3, 4):
+        p = m.predict(d, K, rolls=rolls)
+        assert geodesic_deg(p.rotation, want)[0] < 8, rolls
+        assert np.allclose(p.probabilities, 0.5)
+    with pytest.raises(ValueError, match="rotation-bins"):
+        model.predict(d, K, rolls=2)
+    with pytest.raises(ValueError, match="positive integer"):
+        m.predict(d, K, rolls=0)
