@@ -3,7 +3,7 @@
 # test split (907 usable objects, one view each). Models: the paper's axis-angle head, the 6-D head and the
 # rotation-bins head (plain, with camera-roll augmentation, and with roll augmentation for 20 epochs) under
 # uniform SO(3) views, and the 6-D head under upright views. Writes into results/cpu-modelnet10-vox30*
-# (about 2 h on a 2-core CPU; each model ~20 min per 10 epochs). Usage: bash scripts/cpu_targets.sh [PY]
+# (about 2.5 h on a 2-core CPU; each model ~20 min per 10 epochs). Usage: bash scripts/cpu_targets.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${1:-.venv/bin/python}
@@ -19,6 +19,12 @@ for opts in "bins:" "bins_roll:--augment-roll" "bins_roll20:--augment-roll --epo
   # shellcheck disable=SC2086
   $PY -m hbeo train --dataset $D --profile cpu --rotation bins ${opts#*:} --name model_$name.hbeo --quiet
   $PY -m hbeo evaluate --model $R/model_$name.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_$name.json
+done
+# test-time roll averaging (4 rolls) on the bins models; the 20-epoch model also over 3 views per object
+$PY -m hbeo evaluate --model $R/model_bins_roll.hbeo --dataset $D --split test --views 1 --seed 0 --rolls 4 --quiet --out $R/eval_so3_bins_roll_rolls4.json
+$PY -m hbeo evaluate --model $R/model_bins_roll20.hbeo --dataset $D --split test --views 1 --seed 0 --rolls 4 --quiet --out $R/eval_so3_bins_roll20_rolls4.json
+for r in 1 4; do
+  $PY -m hbeo evaluate --model $R/model_bins_roll20.hbeo --dataset $D --split test --views 3 --seed 0 --rolls $r --quiet --out $R/eval_so3_bins_roll20_views3_rolls$r.json
 done
 $PY -m hbeo train --dataset $D --profile cpu --sampler upright --rotation 6d --name model_6d.hbeo --out $RU --quiet
 $PY -m hbeo evaluate --model $RU/model_6d.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $RU/eval_upright_6d.json
