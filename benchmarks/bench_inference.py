@@ -7,7 +7,7 @@ parameters). The subspace is the paper-sized 344-dimensional basis fitted on the
 grids when ../shared is present, else a procedural one. Also prints batch throughput.
 
 Usage: python benchmarks/bench_inference.py [--profile full] [--repeat 50] [--rotation bins] [--threads N]
-       [--precision bfloat16]
+       [--precision bfloat16] [--rolls 4]
 """
 from __future__ import annotations
 
@@ -35,6 +35,7 @@ def main():
     ap.add_argument("--rotation", default="axis_angle", help="pose head: axis_angle (paper), 6d or bins")
     ap.add_argument("--threads", type=int, help="torch threads (default: torch's choice)")
     ap.add_argument("--precision", default="float32", help="float32 or bfloat16 (HBEO.set_precision)")
+    ap.add_argument("--rolls", type=int, default=1, help="test-time roll averaging (needs --rotation bins)")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -57,20 +58,20 @@ def main():
     with Renderer(K) as r:
         depth = r.render_many(record_mesh(ds.records("test")[0]), Rs, ts)
     for _ in range(5):
-        model.predict(depth[0], K)
+        model.predict(depth[0], K, rolls=args.rolls)
     stages = []
     for i in range(args.repeat):
-        stages.append(model.predict(depth[i % 32], K).timing_ms)
+        stages.append(model.predict(depth[i % 32], K, rolls=args.rolls).timing_ms)
     med = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
     print(f"{prof.name} network, {net.n_params():,} parameters, {prof.kernel}x{prof.kernel} kernels, "
           f"{K.width}x{K.height}, subspace dim {sub.dim_} ({name}), recenter {args.recenter}, pose {args.rotation}, "
-          f"{args.precision}, "
+          f"{args.precision}, rolls {args.rolls}, "
           f"torch threads {torch.get_num_threads()}")
     print("batch 1, median ms: " + ", ".join(f"{k} {v:.2f}" for k, v in med.items())
           + f"  (target <= 10 ms; ratio {med['total'] / 10:.2f})")
     t = time.perf_counter()
     for _ in range(3):
-        model.predict(depth, K)
+        model.predict(depth, K, rolls=args.rolls)
     per = (time.perf_counter() - t) / (3 * len(depth)) * 1e3
     print(f"batch {len(depth)}: {per:.2f} ms per query, {1000 / per:.0f} queries/s")
 
