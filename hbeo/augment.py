@@ -11,6 +11,7 @@ Under uniform SO(3) views this gives every training view all of its rolls.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 import torch
@@ -32,9 +33,8 @@ def roll_depth(depth: np.ndarray, K: Intrinsics, angle: float) -> np.ndarray:
     if not math.isclose(K.fx, K.fy, rel_tol=1e-6):
         raise ValueError(f"rolling a view needs square pixels (fx == fy), got fx={K.fx}, fy={K.fy}")
     H, W = depth.shape
-    v, u = np.mgrid[0:H, 0:W]
+    du, dv = _offsets(H, W, K.cx, K.cy)
     c, s = math.cos(angle), math.sin(angle)
-    du, dv = u - K.cx, v - K.cy
     # inverse map: the pixel of the old image that lands on (u, v)
     su = np.rint(c * du + s * dv + K.cx).astype(np.int64)
     sv = np.rint(-s * du + c * dv + K.cy).astype(np.int64)
@@ -42,6 +42,15 @@ def roll_depth(depth: np.ndarray, K: Intrinsics, angle: float) -> np.ndarray:
     out = np.zeros_like(depth)
     out[ok] = depth[sv[ok], su[ok]]
     return out
+
+
+@lru_cache(maxsize=8)
+def _offsets(H: int, W: int, cx: float, cy: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel offsets (H, W) from the principal point, u - cx and v - cy (read-only, cached)."""
+    v, u = np.mgrid[0:H, 0:W]
+    du, dv = u - cx, v - cy
+    du.flags.writeable = dv.flags.writeable = False
+    return du, dv
 
 
 class RollAugment(Dataset):
