@@ -172,7 +172,7 @@ def cmd_predict(args) -> int:
     K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(args.mask, depth.shape) if args.mask else None
     model = HBEO.load(args.model, precision=args.precision)
-    pred = model.predict(depth, K, mask)
+    pred = model.predict(depth, K, mask, rolls=args.rolls)
     mesh = model.to_mesh(pred) if args.mesh else None     # fails before anything is written
     result = {"model": str(args.model), "depth": str(args.depth), "precision": model.precision, **pred.to_dict(0)}
     if mesh is not None:
@@ -289,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", required=True, help="model file (model.hbeo)")
     p.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
                    help="network arithmetic (bfloat16: faster on CPUs with AVX512-BF16, ~99%% class agreement)")
+    p.add_argument("--rolls", type=int, default=1,
+                   help="average over this many camera rolls (rotation-bins models; N network passes; 1 = off)")
     p.add_argument("--depth", required=True, help="depth image: 16-bit PNG in mm, or float .npy/.tiff in m")
     p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels")
     p.add_argument("--mask", help="object mask image (non-zero = object), same size as the depth")

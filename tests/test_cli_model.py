@@ -54,6 +54,7 @@ def test_predict_on_a_16bit_png(trained, tmp_path):
     ("mask size", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--mask", "small.png"], "mask is 4x4"),
     ("bad model", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--model", "junk.hbeo"],
      "not a readable hbeo model"),
+    ("rolls", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--rolls", "4"], "needs a rotation-bins model"),
 ])
 def test_predict_bad_input_exits_2_with_one_line_and_writes_nothing(trained, tmp_path, what, args, msg):
     depth_png(tmp_path / "d.png")
