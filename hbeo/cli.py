@@ -174,7 +174,8 @@ def cmd_predict(args) -> int:
     model = HBEO.load(args.model, precision=args.precision)
     pred = model.predict(depth, K, mask, rolls=args.rolls)
     mesh = model.to_mesh(pred) if args.mesh else None     # fails before anything is written
-    result = {"model": str(args.model), "depth": str(args.depth), "precision": model.precision, **pred.to_dict(0)}
+    result = {"model": str(args.model), "depth": str(args.depth), "precision": model.precision, "rolls": args.rolls,
+              **pred.to_dict(0)}
     if mesh is not None:
         with atomic_file(args.mesh) as f:
             mesh.export(f, file_type=Path(args.mesh).suffix.lstrip(".").lower() or "ply")

@@ -39,7 +39,7 @@ def test_predict_on_a_16bit_png(trained, tmp_path):
     assert r["class"] in ("bathtub", "bed", "chair", "desk", "dresser", "monitor", "night_stand", "sofa",
                           "table", "toilet")
     assert len(r["axis_angle"]) == 3 and np.isclose(sum(r["probabilities"]), 1, atol=1e-4)
-    assert r["precision"] == "float32"
+    assert r["precision"] == "float32" and r["rolls"] == 1
     fast = run("predict", "--model", str(trained / "model.hbeo"), "--depth", str(tmp_path / "d.png"),
                "--intrinsics", "65.6,65.6,39.5,29.5", "--precision", "bfloat16", "--out", str(tmp_path / "b.json"))
     assert fast.returncode == 0, fast.stderr
