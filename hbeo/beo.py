@@ -74,7 +74,6 @@ SCORES = ("paper", "joint")
 DEFAULT_SO3_GRID = 8192
 
 
-
 def so3_grid(n: int) -> np.ndarray:
     """n near-uniform rotations (n, 3, 3): the super-Fibonacci spiral of Alexa (CVPR 2022),
     deterministic, any n. Sample i in [0, n): s = i + 1/2, r = sqrt(s/n), R = sqrt(1 - s/n),
@@ -83,9 +82,6 @@ def so3_grid(n: int) -> np.ndarray:
     random rotation to the grid mean / max, degrees): n = 512: 26.1 / 29.7, 15.0 / 27.4;
     n = 2048: 14.9 / 18.4, 9.5 / 16.3; n = 4096: 11.1 / 14.6, 7.7 / 13.2; n = 8192: 9.6 / 11.6,
     6.0 / 10.5."""
-    n = int(n)
-    if n < 1:
-        raise ValueError(f"the SO(3) grid needs at least one rotation, got {n}")
     return super_fibonacci(n)
 
 

@@ -19,7 +19,6 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import config, conventions as C
-from .atomic import atomic_file
 from .datasets import Dataset, ObjectRecord
 from .errors import DataError
 from .npzfile import read_npz, write_npz
@@ -78,12 +77,6 @@ def _pack(grids: np.ndarray) -> np.ndarray:
     return np.packbits(grids.reshape(len(grids), int(np.prod(grids.shape[1:]))), axis=1)
 
 
-def _atomic_savez(path: Path, **arrays) -> None:
-    """np.savez_compressed to a temporary file in the same folder, then rename into place."""
-    with atomic_file(path) as f:
-        np.savez_compressed(f, **arrays)
-
-
 def record_grid(record: ObjectRecord, settings: dict = VOXEL_SETTINGS) -> np.ndarray:
     """The object's grid: the stored one if the source has grids, else its mesh voxelized."""
     if record.has_grid:
@@ -140,7 +133,7 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
                disable=not progress, initial=len(records) - sum(len(chunks[k]) for k in todo))
 
     def done(k, grids):
-        _atomic_savez(paths[k], grids=_pack(grids))
+        write_npz(paths[k], None, compressed=True, grids=_pack(grids))
         bar.update(len(chunks[k]))
 
     needs_mesh = any(not r.has_grid for r in records)

@@ -57,12 +57,6 @@ _PATIENCE, _REL_GAIN = 3, 1e-3     # an init stops after 3 iterations without a 
 
 # ----------------------------------------------------------------------------- rotations
 
-def super_fibonacci_rotations(n: int) -> np.ndarray:
-    """n rotation matrices (n, 3, 3) spread near-uniformly over SO(3), deterministic
-    (:func:`hbeo.poses.super_fibonacci`)."""
-    return super_fibonacci(n)
-
-
 def _rot_z(angles) -> np.ndarray:
     a = np.atleast_1d(np.asarray(angles, dtype=np.float64))
     out = np.zeros((len(a), 3, 3))
@@ -316,7 +310,7 @@ class ICPBaseline:
         model, normals, tree = self._model(ci)
 
         if pose == "3dof":
-            R0, axis = super_fibonacci_rotations(self.n_init), None
+            R0, axis = super_fibonacci(self.n_init), None
         else:
             if R_true is None:
                 raise ValueError('pose="1dof" needs R_true (its up direction R_true[:, 2] is given to ICP)')

@@ -14,10 +14,12 @@ from .atomic import atomic_file
 from .errors import DataError
 
 
-def write_npz(path, meta: dict, compressed: bool = False, **arrays) -> Path:
-    """Write ``arrays`` and ``meta`` (JSON-able dict) to ``path`` atomically."""
+def write_npz(path, meta: dict | None, compressed: bool = False, **arrays) -> Path:
+    """Write ``arrays`` and ``meta`` (JSON-able dict; None: no meta entry) to ``path`` atomically."""
+    if meta is not None:
+        arrays["meta"] = np.array(json.dumps(meta))
     with atomic_file(path) as f:
-        (np.savez_compressed if compressed else np.savez)(f, meta=np.array(json.dumps(meta)), **arrays)
+        (np.savez_compressed if compressed else np.savez)(f, **arrays)
     return Path(path)
 
 

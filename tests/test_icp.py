@@ -7,7 +7,7 @@ from hbeo import conventions as C
 from hbeo import datasets, gridset, poses, render
 from hbeo.errors import DataError
 from hbeo.evaluate import symmetric_pose_error
-from hbeo.icp import ICPBaseline, super_fibonacci_rotations
+from hbeo.icp import ICPBaseline
 
 K = C.Intrinsics.kinect(160, 120)
 YAWS = np.radians([20.0, 140.0, 260.0])
@@ -144,14 +144,14 @@ def test_outputs_and_fit(data, views, class_means):
 
 
 def test_super_fibonacci_rotations_cover_so3():
-    R = super_fibonacci_rotations(48)
+    R = poses.super_fibonacci(48)
     assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=1e-9)
     assert np.allclose(np.linalg.det(R), 1.0)
     probe = poses.uniform_so3(500, np.random.default_rng(0))
     gap = C.geodesic_deg(probe[:, None], R[None]).min(axis=1)
     # near-uniform: 48 rotations leave no hole wider than ~66 degrees (an optimal set ~50)
     assert gap.max() < 70 and np.median(gap) < 40
-    assert np.allclose(super_fibonacci_rotations(48), R)
+    assert np.allclose(poses.super_fibonacci(48), R)
 
 
 # ----------------------------------------------------------------------------- persistence
