@@ -24,14 +24,15 @@ import warnings
 
 import numpy as np
 
-from hbeo import config, datasets
+from hbeo import config
+from hbeo.data import datasets
 from hbeo import conventions as C
-from hbeo.beo import BEO, DEFAULT_SO3_GRID, grid_spacing, so3_grid
-from hbeo.evaluate import symmetric_pose_error
-from hbeo.gridset import record_grid
-from hbeo.poses import ViewSampler
-from hbeo.render import Renderer, record_mesh
-from hbeo.subspace import ObjectSubspace
+from hbeo.baselines.beo import BEO, DEFAULT_SO3_GRID, grid_spacing, so3_grid
+from hbeo.reproduction.evaluate import symmetric_pose_error
+from hbeo.data.gridset import record_grid
+from hbeo.render.poses import ViewSampler
+from hbeo.render.renderer import Renderer, record_mesh
+from hbeo.subspace.basis import ObjectSubspace
 
 TARGET_S = {"known": 0.1, "1dof": 5.0, "3dof": 60.0}
 K = C.Intrinsics.kinect(160, 120)

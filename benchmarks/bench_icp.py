@@ -21,9 +21,12 @@ import time
 import numpy as np
 
 from hbeo import conventions as C
-from hbeo import datasets, gridset, poses, render
-from hbeo.evaluate import symmetric_pose_error
-from hbeo.icp import ICPBaseline
+from hbeo.data import datasets
+from hbeo.data import gridset
+from hbeo.render import poses
+from hbeo.render import renderer as render
+from hbeo.reproduction.evaluate import symmetric_pose_error
+from hbeo.baselines.icp import ICPBaseline
 
 TARGET_MS = 500.0
 

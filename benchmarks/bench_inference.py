@@ -18,13 +18,14 @@ import warnings
 import numpy as np
 import torch
 
-from hbeo import config, datasets
-from hbeo.gridset import build_gridset
-from hbeo.model import HBEO
-from hbeo.net import HBEONet, NetConfig
-from hbeo.render import Renderer, record_mesh
-from hbeo.renderset import RenderSettings
-from hbeo.subspace import ObjectSubspace
+from hbeo import config
+from hbeo.data import datasets
+from hbeo.data.gridset import build_gridset
+from hbeo.model.inference import HBEO
+from hbeo.model.network import HBEONet, NetConfig
+from hbeo.render.renderer import Renderer, record_mesh
+from hbeo.render.renderset import RenderSettings
+from hbeo.subspace.basis import ObjectSubspace
 
 
 def main():

@@ -22,11 +22,12 @@ import time
 import numpy as np
 import trimesh
 
-from hbeo import config, procedural
+from hbeo import config
+from hbeo.data import procedural
 from hbeo import conventions as C
-from hbeo.meshio import read_mesh
-from hbeo.poses import ViewSampler
-from hbeo.render import Renderer, embree_available, gl_platform, prepare_mesh
+from hbeo.data.meshio import read_mesh
+from hbeo.render.poses import ViewSampler
+from hbeo.render.renderer import Renderer, embree_available, gl_platform, prepare_mesh
 
 TARGETS = {(320, 240): 300.0, (64, 64): 1000.0}
 

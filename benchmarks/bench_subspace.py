@@ -18,9 +18,10 @@ import warnings
 
 import numpy as np
 
-from hbeo import completion, datasets
-from hbeo.gridset import build_gridset
-from hbeo.subspace import ObjectSubspace
+from hbeo.subspace import completion
+from hbeo.data import datasets
+from hbeo.data.gridset import build_gridset
+from hbeo.subspace.basis import ObjectSubspace
 
 
 def per_query_ms(sub, grids, known, method="lstsq"):

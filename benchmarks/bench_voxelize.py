@@ -5,7 +5,7 @@ Target (issue "Foundation"): >= 20 meshes/s per core for 5k-50k-face meshes, i.e
 
 Meshes: the five real ModelNet10 bathtubs (../shared/modelnet10_sample, 664-30,734 faces)
 and the same meshes subdivided once (x4 faces) to cover the top of the size range. Each is
-read from disk and voxelized (``hbeo.voxel.voxelize`` on the path: parsing included), in one
+read from disk and voxelized (``hbeo.data.voxel.voxelize`` on the path: parsing included), in one
 process. Prints per-mesh timings, the stage split and the rate.
 
 Usage: python benchmarks/bench_voxelize.py [--repeat 5]
@@ -21,8 +21,8 @@ import numpy as np
 import trimesh
 
 from hbeo import config
-from hbeo.meshio import read_mesh
-from hbeo.voxel import fill_solid, surface_grid, voxelize
+from hbeo.data.meshio import read_mesh
+from hbeo.data.voxel import fill_solid, surface_grid, voxelize
 
 
 def write_off(mesh, path):

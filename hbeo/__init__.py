@@ -6,4 +6,4 @@ paths in :mod:`hbeo.config`.
 """
 __version__ = "0.1.0"
 
-from .conventions import CLASSES  # noqa: F401
+from hbeo.conventions import CLASSES  # noqa: F401

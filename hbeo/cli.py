@@ -10,7 +10,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from .errors import HBEOError
+from hbeo.errors import HBEOError
 
 NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
 
@@ -25,7 +25,7 @@ def _dataset_arg(p, profile="cpu"):
 
 def _load_dataset(name: str, prof, **kw):
     """get_dataset with its warnings (e.g. skipped empty grids) printed to stderr as one line each."""
-    from . import datasets
+    from hbeo.data import datasets
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         ds = datasets.get_dataset(name, profile=prof, **kw)
@@ -40,8 +40,8 @@ def cmd_data(args) -> int:
     if args.download:
         if args.dataset != "modelnet10":
             raise HBEOError("--download applies to --dataset modelnet10 only")
-        from .download import fetch_modelnet10
-        from . import config
+        from hbeo.data.download import fetch_modelnet10
+        from hbeo import config
         root = fetch_modelnet10(Path(args.root) if args.root else config.data_dir())
         print(f"ModelNet10 ready in {root}")
     kw = {"root": args.root} if (args.dataset == "modelnet10" and args.root) else {}
@@ -54,8 +54,9 @@ def cmd_data(args) -> int:
 
 
 def cmd_voxelize(args) -> int:
-    from . import config, datasets
-    from .gridset import build_gridset
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.data.gridset import build_gridset
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
     out = config.run_dir(prof.name, args.dataset, args.out)
@@ -69,9 +70,11 @@ def cmd_voxelize(args) -> int:
 
 def cmd_subspace(args) -> int:
     import pandas as pd
-    from . import completion, config, datasets
-    from .gridset import build_gridset
-    from .subspace import ObjectSubspace
+    from hbeo.subspace import completion
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.data.gridset import build_gridset
+    from hbeo.subspace.basis import ObjectSubspace
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
     out = config.run_dir(prof.name, args.dataset, args.out)
@@ -104,9 +107,10 @@ def cmd_subspace(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from . import config, datasets
-    from .renderset import RenderSettings, render_set
-    from .subspace import ObjectSubspace
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.render.renderset import RenderSettings, render_set
+    from hbeo.subspace.basis import ObjectSubspace
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
     out = config.run_dir(prof.name, args.dataset, args.out)
@@ -127,7 +131,7 @@ def cmd_render(args) -> int:
 
 
 def _loss_weights(text: str):
-    from .net import LossWeights
+    from hbeo.model.network import LossWeights
     try:
         c, o, p = (float(x) for x in text.split(","))
     except ValueError:
@@ -138,10 +142,10 @@ def _loss_weights(text: str):
 
 
 def cmd_train(args) -> int:
-    from . import config
-    from .fit import ViewOptions, fit_model
-    from .pipeline import ensure_render
-    from .renderset import RenderSettings
+    from hbeo import config
+    from hbeo.model.fit import ViewOptions, fit_model
+    from hbeo.model.pipeline import ensure_render
+    from hbeo.render.renderset import RenderSettings
     prof = config.get_profile(args.profile)
     weights = _loss_weights(args.loss_weights)
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
@@ -159,15 +163,15 @@ def cmd_train(args) -> int:
 
 def _write_json(path, obj) -> None:
     import json
-    from .atomic import atomic_file
+    from hbeo.storage import atomic_file
     with atomic_file(path, "w") as f:
         json.dump(obj, f, indent=2)
 
 
 def cmd_predict(args) -> int:
-    from .atomic import atomic_file
-    from .depthio import parse_intrinsics, read_depth, read_mask
-    from .model import HBEO
+    from hbeo.storage import atomic_file
+    from hbeo.render.depthio import parse_intrinsics, read_depth, read_mask
+    from hbeo.model.inference import HBEO
     depth = read_depth(args.depth, args.depth_scale)
     K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(args.mask, depth.shape) if args.mask else None
@@ -186,9 +190,9 @@ def cmd_predict(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from .evaluate import evaluate_model
-    from .methods import check_method, load_method
-    from .model import HBEO
+    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.baselines.methods import check_method, load_method
+    from hbeo.model.inference import HBEO
     pose = check_method(args.method, args.pose)
     model = HBEO.load(args.model, precision=args.precision)
     if args.rolls < 1 or (args.rolls > 1 and model.net.cfg.rotation != "bins"):
@@ -209,14 +213,14 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from .reproduce import run_notebooks
+    from hbeo.reproduction.report import run_notebooks
     run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out,
                   only=args.only)
     return 0
 
 
 def cmd_report(args) -> int:
-    from .reproduce import write_reproduction
+    from hbeo.reproduction.report import write_reproduction
     path = write_reproduction(args.run, args.out)
     print(f"wrote {path}")
     return 0

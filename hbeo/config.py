@@ -111,15 +111,20 @@ def cache_dir() -> Path:
     return Path(env).expanduser() if env else data_dir() / "cache"
 
 
-def run_dir(profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> Path:
-    """Directory a run writes into (created): ``out_dir`` if given (relative paths are taken
-    from the repository root), else ``<results>/<profile>-<dataset>``."""
+def run_path(profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> Path:
+    """Where a run lives (not created; :class:`hbeo.rundir.RunDir` owns what is inside): ``out_dir``
+    if given (relative paths are taken from the repository root), else
+    ``<HBEO_RESULTS>/<profile>-<dataset>``."""
     if out_dir:
         p = Path(out_dir).expanduser()
-        p = p if p.is_absolute() else REPO_ROOT / p
-    else:
-        base = Path(os.environ.get("HBEO_RESULTS", REPO_ROOT / "results"))
-        safe = str(dataset).replace(os.sep, "_").strip("_") or "dataset"
-        p = base / f"{profile}-{safe}"
+        return p if p.is_absolute() else REPO_ROOT / p
+    base = Path(os.environ.get("HBEO_RESULTS", REPO_ROOT / "results"))
+    safe = str(dataset).replace(os.sep, "_").strip("_") or "dataset"
+    return base / f"{profile}-{safe}"
+
+
+def run_dir(profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> Path:
+    """Deprecated during the redesign: use :meth:`hbeo.rundir.RunDir.for_run`."""
+    p = run_path(profile, dataset, out_dir)
     p.mkdir(parents=True, exist_ok=True)
     return p

@@ -5,10 +5,10 @@ import pytest
 import torch
 
 from hbeo import conventions as C
-from hbeo import procedural
-from hbeo.augment import RollAugment, roll_depth, roll_matrix
-from hbeo.poses import uniform_so3
-from hbeo.render import Renderer, prepare_mesh
+from hbeo.data import procedural
+from hbeo.model.augment import RollAugment, roll_depth, roll_matrix
+from hbeo.render.poses import uniform_so3
+from hbeo.render.renderer import Renderer, prepare_mesh
 
 K = C.Intrinsics.kinect(80, 60)
 

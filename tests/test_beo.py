@@ -5,14 +5,15 @@ import numpy as np
 import pytest
 
 from hbeo import conventions as C
-from hbeo import datasets, render
-from hbeo.beo import BEO, grid_spacing, rot_z, so3_grid
+from hbeo.data import datasets
+from hbeo.render import renderer as render
+from hbeo.baselines.beo import BEO, grid_spacing, rot_z, so3_grid
 from hbeo.errors import DataError
-from hbeo.gridset import record_grid
-from hbeo.partial import depth_to_partial_many
-from hbeo.poses import ViewSampler, upright
-from hbeo.render import Renderer, record_mesh
-from hbeo.subspace import ObjectSubspace
+from hbeo.data.gridset import record_grid
+from hbeo.subspace.partial import depth_to_partial_many
+from hbeo.render.poses import ViewSampler, upright
+from hbeo.render.renderer import Renderer, record_mesh
+from hbeo.subspace.basis import ObjectSubspace
 
 pytestmark = pytest.mark.skipif(not render.embree_available(), reason="embreex not installed")
 

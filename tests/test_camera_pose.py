@@ -4,7 +4,7 @@ from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from hbeo import conventions as C
-from hbeo.poses import ViewSampler, uniform_so3, upright
+from hbeo.render.poses import ViewSampler, uniform_so3, upright
 
 
 def test_kinect_intrinsics_scale_with_the_image():

@@ -31,7 +31,7 @@ def test_bad_dataset_exits_2_with_one_line():
 def test_voxelize_writes_grids(tmp_path, sample_dir):
     out = run("voxelize", "--dataset", str(sample_dir), "--profile", "ci", "--out", str(tmp_path))
     assert out.returncode == 0, out.stderr
-    from hbeo.gridset import GridSet
+    from hbeo.data.gridset import GridSet
     gs = GridSet.load(tmp_path / "grids_train.npz")
     assert len(gs) == 5
 
@@ -45,5 +45,5 @@ def test_subspace_command_fits_and_reports(tmp_path):
     assert summary["dim"] == sum(summary["n_components"].values()) + 10
     assert set(summary["errors"]) == {"full", "partial"}
     assert 0 < summary["errors"]["full"]["all"]["naive"] <= 1
-    from hbeo.subspace import ObjectSubspace
+    from hbeo.subspace.basis import ObjectSubspace
     assert ObjectSubspace.load(tmp_path / "subspace.npz").dim_ == summary["dim"]

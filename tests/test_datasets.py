@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from hbeo import datasets
+from hbeo.data import datasets
 from hbeo.conventions import CLASSES
 from hbeo.errors import MissingDataError
 

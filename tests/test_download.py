@@ -1,4 +1,4 @@
-"""Tests for hbeo.download against a local HTTP server on 127.0.0.1 (no internet)."""
+"""Tests for hbeo.data.download against a local HTTP server on 127.0.0.1 (no internet)."""
 from __future__ import annotations
 
 import hashlib
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from hbeo.download import (MODELNET10_SHA256, MODELNET10_SIZE, MODELNET10_URL, DownloadError,
+from hbeo.data.download import (MODELNET10_SHA256, MODELNET10_SIZE, MODELNET10_URL, DownloadError,
                            download, extract_zip, fetch_modelnet10, find_class_root)
 from hbeo.errors import HBEOError
 

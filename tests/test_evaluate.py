@@ -1,8 +1,8 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hbeo.evaluate import summarize, symmetric_pose_error
-from hbeo.poses import uniform_so3
+from hbeo.reproduction.evaluate import summarize, symmetric_pose_error
+from hbeo.render.poses import uniform_so3
 
 
 def test_symmetric_pose_error_forgives_only_the_class_turns():

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from hbeo import datasets, gridset
+from hbeo.data import datasets
+from hbeo.data import gridset
 from hbeo.errors import DataError
-from hbeo.gridset import GridSet, build_gridset
+from hbeo.data.gridset import GridSet, build_gridset
 
 
 @pytest.fixture

@@ -1,13 +1,16 @@
-"""ICP pose baseline (hbeo.icp): planted poses recovered, better than chance on procedural views,
+"""ICP pose baseline (hbeo.baselines.icp): planted poses recovered, better than chance on procedural views,
 persistence and input errors. Views are rendered once per module (embree, 160x120, ~1.7 m)."""
 import numpy as np
 import pytest
 
 from hbeo import conventions as C
-from hbeo import datasets, gridset, poses, render
+from hbeo.data import datasets
+from hbeo.data import gridset
+from hbeo.render import poses
+from hbeo.render import renderer as render
 from hbeo.errors import DataError
-from hbeo.evaluate import symmetric_pose_error
-from hbeo.icp import ICPBaseline
+from hbeo.reproduction.evaluate import symmetric_pose_error
+from hbeo.baselines.icp import ICPBaseline
 
 K = C.Intrinsics.kinect(160, 120)
 YAWS = np.radians([20.0, 140.0, 260.0])

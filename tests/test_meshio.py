@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hbeo.errors import DataError
-from hbeo.meshio import parse_off, read_mesh
+from hbeo.data.meshio import parse_off, read_mesh
 
 SQUARE = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from hbeo import metrics
+from hbeo.subspace import metrics
 
 
 def cube(lo, hi, r=30):

@@ -2,13 +2,13 @@ import numpy as np
 import pytest
 import torch
 
-from hbeo import datasets
+from hbeo.data import datasets
 from hbeo.conventions import Intrinsics
 from hbeo.errors import DataError
-from hbeo.gridset import build_gridset
-from hbeo.model import HBEO
-from hbeo.net import HBEONet, NetConfig
-from hbeo.subspace import ObjectSubspace
+from hbeo.data.gridset import build_gridset
+from hbeo.model.inference import HBEO
+from hbeo.model.network import HBEONet, NetConfig
+from hbeo.subspace.basis import ObjectSubspace
 
 
 @pytest.fixture(scope="module")
@@ -114,8 +114,8 @@ class _RollReader(torch.nn.Module):
         self.net, self.R0 = net, torch.tensor(R0)
 
     def forward(self, x):
-        from hbeo.augment import roll_matrix
-        from hbeo.net import bin_targets
+        from hbeo.model.augment import roll_matrix
+        from hbeo.model.network import bin_targets
         d = x.float()[:, 0]
         H, W = d.shape[1:]
         v, u = torch.meshgrid(torch.arange(H) - (H - 1) / 2, torch.arange(W) - (W - 1) / 2, indexing="ij")
@@ -139,7 +139,7 @@ def _bins_model(model, n=2048):
 
 
 def test_roll_permutation_finds_the_turned_bin(model):
-    from hbeo.augment import roll_matrix
+    from hbeo.model.augment import roll_matrix
     from hbeo.conventions import geodesic_deg
     m = _bins_model(model)
     G = m.net.bin_rotations.double().numpy()
@@ -151,7 +151,7 @@ def test_roll_permutation_finds_the_turned_bin(model):
 
 def test_roll_averaging_turns_each_rolls_distribution_back(model):
     from hbeo.conventions import geodesic_deg
-    from hbeo.poses import uniform_so3
+    from hbeo.render.poses import uniform_so3
     m = _bins_model(model)
     R0 = uniform_so3(1, np.random.default_rng(7))[0].astype(np.float32)
     m._net = _RollReader(m.net, R0)

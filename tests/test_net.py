@@ -3,9 +3,9 @@ import pytest
 import torch
 
 from hbeo import conventions as C
-from hbeo.net import (HBEONet, LossWeights, NetConfig, axis_angle_to_matrix, hbeo_loss, matrix_to_sixd,
+from hbeo.model.network import (HBEONet, LossWeights, NetConfig, axis_angle_to_matrix, hbeo_loss, matrix_to_sixd,
                       bin_cosines, bin_targets, normalize_depth, pose_to_matrix, sixd_to_matrix)
-from hbeo.poses import uniform_so3
+from hbeo.render.poses import uniform_so3
 
 
 def test_paper_sized_network_has_about_15m_parameters_and_right_heads():

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hbeo.errors import DataError
-from hbeo.npzfile import read_npz, write_npz
+from hbeo.storage import read_npz, write_npz
 
 
 def test_round_trip_and_every_failure_names_the_file(tmp_path):

@@ -7,9 +7,9 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from hbeo import conventions as C
-from hbeo import render
-from hbeo.partial import depth_to_partial, depth_to_partial_many, iter_partial, voxel_size
-from hbeo.render import Renderer, prepare_mesh
+from hbeo.render import renderer as render
+from hbeo.subspace.partial import depth_to_partial, depth_to_partial_many, iter_partial, voxel_size
+from hbeo.render.renderer import Renderer, prepare_mesh
 
 pytestmark = pytest.mark.skipif(not render.embree_available(), reason="embreex not installed")
 

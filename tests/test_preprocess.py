@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hbeo.conventions import Intrinsics
-from hbeo.preprocess import look_at, to_model_view
+from hbeo.model.preprocess import look_at, to_model_view
 
 
 def sphere_depth(K, center, r):

@@ -1,4 +1,4 @@
-"""Tests of hbeo.procedural: determinism, validity, variety, frame conventions."""
+"""Tests of hbeo.data.procedural: determinism, validity, variety, frame conventions."""
 import collections
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from scipy import ndimage
 
 from hbeo.conventions import CLASSES
-from hbeo.procedural import VARIANTS, generate
+from hbeo.data.procedural import VARIANTS, generate
 
 ALL_VARIANTS = [(c, v) for c in CLASSES for v in VARIANTS[c]]
 

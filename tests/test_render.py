@@ -10,11 +10,12 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from hbeo import conventions as C
-from hbeo import procedural, render
+from hbeo.data import procedural
+from hbeo.render import renderer as render
 from hbeo.errors import DataError
-from hbeo.meshio import read_mesh
-from hbeo.poses import ViewSampler
-from hbeo.render import Renderer, SensorNoise, grid_mesh, prepare_mesh, record_mesh
+from hbeo.data.meshio import read_mesh
+from hbeo.render.poses import ViewSampler
+from hbeo.render.renderer import Renderer, SensorNoise, grid_mesh, prepare_mesh, record_mesh
 
 BACKENDS = [pytest.param("embree", marks=pytest.mark.skipif(not render.embree_available(),
                                                              reason="embreex not installed")),
@@ -182,7 +183,7 @@ def test_osmesa_platform_agrees_with_embree():
     OpenGL loads, so this process (which may already use EGL) cannot test it."""
     code = (
         "import numpy as np, trimesh\n"
-        "from hbeo import render, conventions as C\n"
+        "from hbeo.render import renderer as render\nfrom hbeo import conventions as C\n"
         "K = C.Intrinsics.kinect(96, 72)\n"
         "m = trimesh.creation.icosphere(4, radius=0.4)\n"
         "R, t = np.eye(3), np.array([0.1, -0.05, 1.5])\n"
@@ -273,7 +274,7 @@ def test_grid_mesh_lands_in_the_frame_of_the_matching_mesh(sample_dir, vox30):
 def test_record_mesh_uses_mesh_or_grid():
     from functools import partial
 
-    from hbeo.datasets import ObjectRecord
+    from hbeo.data.datasets import ObjectRecord
     rec = ObjectRecord("chair", "train", "chair_x", _mesh=partial(procedural.generate, "chair", "train", 0))
     m = record_mesh(rec, object_size=0.5)
     assert np.ptp(m.vertices, axis=0).max() == pytest.approx(0.5)

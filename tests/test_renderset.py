@@ -12,13 +12,16 @@ import numpy as np
 import pytest
 import torch
 
-from hbeo import cli, config, conventions as C, datasets
-from hbeo.datasets import ObjectRecord
+from hbeo import cli
+from hbeo import config
+from hbeo import conventions as C
+from hbeo.data import datasets
+from hbeo.data.datasets import ObjectRecord
 from hbeo.errors import DataError
-from hbeo.gridset import build_gridset, record_grid
-from hbeo.renderset import (DepthShards, Manifest, RenderSettings, ShardSampler, StreamingDepth,
+from hbeo.data.gridset import build_gridset, record_grid
+from hbeo.render.renderset import (DepthShards, Manifest, RenderSettings, ShardSampler, StreamingDepth,
                             load_shard, render_set, split_by_object)
-from hbeo.subspace import ObjectSubspace
+from hbeo.subspace.basis import ObjectSubspace
 
 CLASSES = ("bed", "chair", "table")
 SMALL = RenderSettings(image_size=(32, 24), views_per_object=2)
@@ -251,7 +254,7 @@ def test_settings_from_profile_round_trip():
 def test_view_arrays_keep_views_that_show_nothing(rendered, monkeypatch):
     """A view showing nothing (degenerate grids seen edge-on do that) stays an empty image with its
     pose when views are re-centred, instead of stopping the training set."""
-    from hbeo import fit
+    from hbeo.model import fit
     real = fit.load_shard
 
     def one_empty(path):

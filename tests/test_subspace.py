@@ -1,10 +1,11 @@
 import numpy as np
 import pytest
 
-from hbeo import datasets, metrics
+from hbeo.data import datasets
+from hbeo.subspace import metrics
 from hbeo.errors import DataError
-from hbeo.gridset import build_gridset
-from hbeo.subspace import ObjectSubspace
+from hbeo.data.gridset import build_gridset
+from hbeo.subspace.basis import ObjectSubspace
 
 CLASSES = ("bed", "chair", "table")
 
@@ -140,7 +141,7 @@ def test_eigen_objects_and_counts_from_spectra(fitted):
 
 
 def test_run_gridsets_reads_what_it_wrote(tmp_path, monkeypatch):
-    from hbeo.gridset import run_gridsets
+    from hbeo.data.gridset import run_gridsets
     monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
     first = run_gridsets("procedural", "ci", tmp_path, progress=False)
     assert (tmp_path / "grids_train.npz").exists() and len(first["test"]) == 30

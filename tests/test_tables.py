@@ -1,12 +1,13 @@
-"""Tables and claims from evaluation metrics (synthetic metrics from hbeo.evaluate.summarize)."""
+"""Tables and claims from evaluation metrics (synthetic metrics from hbeo.reproduction.evaluate.summarize)."""
 import numpy as np
 import pandas as pd
 import pytest
 
-from hbeo import reproduce, tables
+from hbeo.reproduction import report as reproduce
+from hbeo.reproduction import tables
 from hbeo.conventions import CLASSES
-from hbeo.evaluate import summarize
-from hbeo.poses import uniform_so3
+from hbeo.reproduction.evaluate import summarize
+from hbeo.render.poses import uniform_so3
 
 
 def fake_metrics(method, pose, accuracy, pose_err_deg, iou_shift=0, given=False, n=40, seed=0):

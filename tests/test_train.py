@@ -3,9 +3,9 @@ import pandas as pd
 import torch
 
 from hbeo import conventions as C
-from hbeo.net import LossWeights, NetConfig
-from hbeo.poses import uniform_so3
-from hbeo.train import CHECKPOINT, LOG, TrainConfig, train
+from hbeo.model.network import LossWeights, NetConfig
+from hbeo.render.poses import uniform_so3
+from hbeo.model.train import CHECKPOINT, LOG, TrainConfig, train
 
 CFG = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=4, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16))
 

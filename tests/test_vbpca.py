@@ -5,7 +5,7 @@ from scipy.linalg import subspace_angles
 from sklearn.decomposition import PCA
 from sklearn.exceptions import ConvergenceWarning
 
-from hbeo.vbpca import VBPCA
+from hbeo.subspace.vbpca import VBPCA
 
 
 def planted(n, d, scales, noise, seed=0, offset=3.0):

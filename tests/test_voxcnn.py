@@ -5,12 +5,12 @@ import pandas as pd
 import pytest
 import torch
 
-from hbeo import voxcnn as V
+from hbeo.baselines import voxcnn as V
 from hbeo.errors import DataError
-from hbeo.gridset import GridSet
-from hbeo.metrics import iou
-from hbeo.partial import depth_to_partial
-from hbeo.renderset import load_shard
+from hbeo.data.gridset import GridSet
+from hbeo.subspace.metrics import iou
+from hbeo.subspace.partial import depth_to_partial
+from hbeo.render.renderset import load_shard
 
 TEST_EPOCHS = V.PROFILES["ci"]["epochs"]      #: the ci profile as is (3 epochs, seconds each)
 
@@ -31,7 +31,7 @@ def one_thread():
 def ci_run(tmp_path_factory):
     """grids, subspace and rendered train/test sets of the procedural ci run (rendered in spawned
     workers by render_set, so no renderer stays in this process)."""
-    from hbeo.pipeline import ensure_render
+    from hbeo.model.pipeline import ensure_render
     run = tmp_path_factory.mktemp("voxcnn_run")
     ensure_render("procedural", "ci", run, progress=False)
     ensure_render("procedural", "ci", run, split="test", progress=False)
@@ -51,7 +51,7 @@ def trained(one_thread, ci_run, pset):
 @pytest.fixture(scope="module")
 def test_views(one_thread, ci_run):
     """All rendered views of the held-out test objects: depth, pose, partial grids, truth."""
-    from hbeo.renderset import Manifest
+    from hbeo.render.renderset import Manifest
     m = Manifest.load(ci_run / "render_test")
     grids = GridSet.load(ci_run / "grids_test.npz")
     assert list(grids.ids) == m.object_ids
@@ -110,7 +110,7 @@ def test_space_to_depth_and_input_encoding():
 # ------------------------------------------------------------------ the partial training set
 
 def test_partial_training_set(ci_run, pset):
-    from hbeo.renderset import Manifest
+    from hbeo.render.renderset import Manifest
     m = Manifest.load(ci_run / "render_train")
     assert len(pset) == m.n_images and pset.classes == m.classes
     # cached, written atomically, and reused (same arrays, no recomputation)

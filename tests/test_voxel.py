@@ -3,7 +3,7 @@ import pytest
 import trimesh
 
 from hbeo.errors import DataError
-from hbeo.voxel import sample_triangles, voxelize
+from hbeo.data.voxel import sample_triangles, voxelize
 
 
 def iou(a, b):

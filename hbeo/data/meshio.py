@@ -1,0 +1,172 @@
+"""Reading triangle meshes from disk: OFF (with ModelNet's quirks), OBJ, PLY, STL.
+
+``read_mesh(path)`` returns a :class:`trimesh.Trimesh` built with ``process=False``:
+vertices exactly as in the file (unused ones included, which matters for the
+3D ShapeNets grid layout), polygons fan-triangulated. Units and frame are the
+file's own.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from hbeo.errors import DataError
+
+MESH_SUFFIXES = (".off", ".obj", ".ply", ".stl")
+
+
+def _fan(polys: list[list[int]]) -> np.ndarray:
+    """Fan-triangulate polygons given as index lists -> (F, 3) int64."""
+    tris = [(p[0], p[i], p[i + 1]) for p in polys for i in range(1, len(p) - 1)]
+    return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+
+
+def _numbers(block: list[str], width: int, dtype, path, what: str) -> np.ndarray:
+    """Parse lines of at least ``width`` numbers each -> (len(block), width); extra columns dropped."""
+    try:
+        flat = np.array(" ".join(block).split(), dtype=dtype)
+        if flat.size == width * len(block):
+            return flat.reshape(-1, width)
+        return np.array([ln.split()[:width] for ln in block], dtype=dtype).reshape(-1, width)
+    except ValueError:
+        raise DataError(path, f"unreadable {what} line (expected {width} numbers)") from None
+
+
+def _faces(block: list[str], path) -> np.ndarray:
+    """Parse OFF face lines ``n i1 .. in [colour]`` -> fan-triangulated (F, 3) int64."""
+    try:
+        flat = np.array(" ".join(block).split(), dtype=np.int64)
+        if flat.size == 4 * len(block) and (flat[::4] == 3).all():   # the common all-triangle case
+            return flat.reshape(-1, 4)[:, 1:]
+    except ValueError:
+        pass  # colours as floats, or garbage: take the per-line path below
+    polys = []
+    for ln in block:
+        tok = ln.split()
+        try:
+            k = int(tok[0])
+            if k < 3 or len(tok) < k + 1:
+                raise ValueError
+            polys.append([int(x) for x in tok[1:k + 1]])
+        except (ValueError, IndexError):
+            raise DataError(path, f"unreadable face line {ln[:60]!r} (expected 'n i1 ... in' with n >= 3)") from None
+    return _fan(polys)
+
+
+def _off_header(text: str, path) -> tuple[int, int, int]:
+    """-> (n_vertices, n_faces, offset of the first data character) of OFF text."""
+    pos, keyword, counts = 0, None, None
+    while counts is None:
+        if pos >= len(text):
+            raise DataError(path, "OFF header has no vertex/face counts" if keyword else
+                            "not an OFF file (empty)")
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        line = text[pos:end].split("#", 1)[0].strip()
+        pos = end + 1
+        if not line:
+            continue
+        if keyword is None:
+            if not line.upper().startswith(("OFF", "COFF", "NOFF", "STOFF")):
+                raise DataError(path, "not an OFF file (first line does not start with 'OFF')")
+            keyword = line.split()[0].rstrip("0123456789")  # "OFF1234" -> "OFF"
+            line = line[len(keyword):].strip()              # ModelNet's "OFF1234 5678 0"
+            if not line:
+                continue
+        counts = line.split()
+    try:
+        n_v, n_f = int(counts[0]), int(counts[1])
+    except (IndexError, ValueError):
+        raise DataError(path, f"bad OFF counts line {' '.join(counts)!r}; expected 'V F E'") from None
+    if n_v < 0 or n_f < 0:
+        raise DataError(path, f"negative vertex/face count ({n_v}, {n_f})")
+    return n_v, n_f, min(pos, len(text))
+
+
+def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
+    """Parse OFF text -> (vertices (V, 3) float64, faces (F, 3) int64).
+
+    Accepts the standard header (``OFF`` line, then ``V F E``), ModelNet's broken
+    one-line header (``OFF1234 5678 0``), ``#`` comments, blank lines, per-vertex or
+    per-face colours after the coordinates, and polygons with any number of sides
+    (fan-triangulated). Raises :class:`DataError` naming ``path`` on anything else.
+    """
+    n_v, n_f, start = _off_header(text, path)
+    body = text[start:]
+    verts = faces = None
+    if "#" not in body:   # fast path: plain x y z rows, then "3 i j k" rows (ModelNet's files)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            try:   # stops at text it cannot read: numpy 1 warns, numpy 2 raises
+                flat = np.fromstring(body, sep=" ")
+            except ValueError:
+                flat = np.empty(0)
+        if flat.size == 3 * n_v + 4 * n_f:
+            tri = flat[3 * n_v:].reshape(-1, 4)
+            if (tri[:, 0] == 3).all() and (tri == np.round(tri)).all():
+                verts, faces = flat[:3 * n_v].reshape(-1, 3), tri[:, 1:].astype(np.int64)
+    if verts is None:
+        lines = [ln.split("#", 1)[0].strip() for ln in body.splitlines()]
+        lines = [ln for ln in lines if ln]
+        if len(lines) < n_v + n_f:
+            raise DataError(path, f"truncated OFF: header promises {n_v} vertices and {n_f} faces, "
+                                  f"file has {len(lines)} data lines")
+        verts = _numbers(lines[:n_v], 3, np.float64, path, "vertex")
+        faces = _faces(lines[n_v:n_v + n_f], path)
+    if not np.isfinite(verts).all():
+        raise DataError(path, "vertex coordinates contain NaN or infinity")
+    if faces.size and (faces.min() < 0 or faces.max() >= n_v):
+        raise DataError(path, f"face refers to vertex {int(faces.max())} but the file has {n_v} vertices")
+    return verts, faces
+
+
+def check_mesh(vertices, faces, name=None) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (vertices (V, 3) float64, faces (F, 3) int64) of a mesh; :class:`DataError`
+    naming ``name`` (its file or id) if it is empty, non-finite, out of range or degenerate."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1:] != (3,) or len(v) == 0:
+        raise DataError(name, f"empty mesh: no vertices (shape {v.shape})")
+    if f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0:
+        raise DataError(name, "empty mesh: no triangle faces")
+    if not np.isfinite(v).all():
+        raise DataError(name, "vertex coordinates contain NaN or infinity")
+    if f.min() < 0 or f.max() >= len(v):
+        raise DataError(name, "face indices out of range of the vertex list")
+    if np.ptp(v, axis=0).max() <= 0:
+        raise DataError(name, "degenerate mesh: all vertices coincide")
+    return v, f
+
+
+def read_mesh(path) -> trimesh.Trimesh:
+    """Read a mesh file (.off, .obj, .ply, .stl) -> Trimesh (process=False, unused vertices kept).
+
+    Raises :class:`DataError` naming the file when it is missing, unreadable or empty.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(path, "no such mesh file")
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise DataError(path, f"unsupported mesh format {suffix!r}; expected one of {', '.join(MESH_SUFFIXES)}")
+    if suffix == ".off":
+        try:
+            text = path.read_text(errors="strict")
+        except UnicodeDecodeError:
+            raise DataError(path, "not a text OFF file (binary OFF is not supported)") from None
+        verts, faces = parse_off(text, path)
+        mesh = trimesh.Trimesh(verts, faces, process=False, validate=False)
+    else:
+        try:
+            loaded = trimesh.load(os.fspath(path), process=False, force="mesh")
+        except Exception as err:  # trimesh raises many types on malformed files
+            raise DataError(path, f"unreadable {suffix} mesh ({type(err).__name__}: {err})") from None
+        mesh = loaded
+    if len(mesh.faces) == 0:
+        raise DataError(path, "mesh has no faces")
+    mesh.metadata["file"] = os.fspath(path)
+    return mesh

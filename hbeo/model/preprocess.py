@@ -1,0 +1,130 @@
+"""From a user's depth image to the model's input view, and back to the user's frame.
+
+A model is trained on images from one virtual camera (its intrinsics and size; objects
+near the optical axis at the training distances). A real image has other intrinsics and
+the object anywhere in it. :func:`to_model_view` resamples the masked depth into the
+model's camera after turning it to look straight at the object (rotation ``Q``, virtual
+camera frame -> user camera frame), so a pose predicted in the virtual frame becomes
+``Q @ R`` in the user's. With ``ref_distance`` it also zooms the virtual camera and shifts
+depth so the object appears as if its centre were at ``ref_distance`` metres, which makes
+the input insensitive to the object's distance (up to perspective). The centre's distance
+is estimated as that of the observed points' median plus their lateral radius
+(sqrt(2) x RMS distance from the view ray: the radius of a disc).
+
+Resampling is backward (each virtual pixel looks up the nearest user pixel along its ray),
+so there are no holes; depth is re-expressed as z in the virtual camera.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from hbeo.conventions import Intrinsics, backproject
+
+
+@dataclass
+class View:
+    """Result of :func:`to_model_view`."""
+
+    depth: np.ndarray       #: (H, W) float32, metres in the virtual camera, 0 = none
+    Q: np.ndarray           #: (3, 3) virtual camera frame -> user camera frame
+    center: np.ndarray      #: (3,) robust centre of the observed points, user camera frame, metres
+    distance: float         #: estimated distance of the object's centre: |center| + its lateral radius
+    zoom: float             #: virtual focal length / model focal length (1 without ref_distance)
+
+
+@lru_cache(maxsize=8)
+def _pixel_rays_cached(K: Intrinsics, zoom: float) -> np.ndarray:
+    v, u = np.mgrid[0:K.height, 0:K.width]
+    rays = np.stack([(u - K.cx) / (K.fx * zoom), (v - K.cy) / (K.fy * zoom), np.ones_like(u, float)], -1)
+    rays.setflags(write=False)
+    return rays
+
+
+def _pixel_rays(K: Intrinsics, zoom: float) -> np.ndarray:
+    """Rays (H, W, 3) through the pixel centres of camera ``K`` with its focal length times ``zoom``
+    (cached for the unzoomed camera, which every call without distance normalization uses)."""
+    if zoom == 1.0:
+        return _pixel_rays_cached(K, 1.0)
+    return _pixel_rays_cached.__wrapped__(K, zoom)
+
+
+def look_at(direction: np.ndarray) -> np.ndarray:
+    """The smallest rotation Q (3, 3) taking the optical axis +z to ``direction`` (no twist about
+    it): virtual camera frame -> user camera frame."""
+    z = np.asarray(direction, np.float64)
+    z = z / np.linalg.norm(z)
+    axis = np.cross([0.0, 0.0, 1.0], z)
+    s, c = np.linalg.norm(axis), z[2]
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / s
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * Kx + (1 - c) * Kx @ Kx
+
+
+def check_depth(depth, mask=None, name: str = "depth") -> np.ndarray:
+    """Validated float64 depth with the mask applied; ValueError naming the problem."""
+    d = np.asarray(depth)
+    if d.ndim != 2 or min(d.shape) < 1:
+        raise ValueError(f"{name} must be a 2-D image, got shape {d.shape}")
+    if d.dtype.kind not in "uif":
+        raise ValueError(f"{name} has dtype {d.dtype}; expected numbers")
+    valid = d > 0                                   # False for NaN
+    if d.dtype.kind == "f":
+        valid &= np.isfinite(d)
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.shape != d.shape:
+            raise ValueError(f"mask is {m.shape[1] if m.ndim > 1 else '?'}x{m.shape[0]} but {name} is "
+                             f"{d.shape[1]}x{d.shape[0]}")
+        valid &= m.astype(bool)
+    if not valid.any():
+        if d.dtype.kind == "f" and np.isnan(d).all():
+            raise ValueError(f"{name} is all NaN")
+        raise ValueError(f"{name} has no valid pixels (all zero, NaN or masked out)")
+    out = np.zeros(d.shape)
+    np.copyto(out, d, where=valid)
+    return out
+
+
+def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, recenter: bool = True,
+                  ref_distance: float | None = None) -> View:
+    """Resample a (masked) depth image (H, W), metres, into the model's camera; see the module doc."""
+    d = check_depth(depth, mask)
+    if d.shape != (K_user.height, K_user.width):
+        raise ValueError(f"depth image is {d.shape[1]}x{d.shape[0]} but the intrinsics are for "
+                         f"{K_user.width}x{K_user.height}")
+    pts, _ = backproject(d, K_user)
+    center = np.median(pts, axis=0)
+    if recenter:
+        Q = look_at(center)
+        local = pts[:, :2] @ Q[:2, :2] + pts[:, 2:] * Q[2, :2]    # virtual frame, x and y only
+        mid = np.median(local, axis=0)
+    else:                                          # the virtual frame is the camera's
+        Q, local, mid = np.eye(3), pts[:, :2], center[:2]
+    lateral = np.sqrt(2 * np.mean(np.sum((local - mid) ** 2, axis=1)))
+    dist = float(np.linalg.norm(center) + lateral)   # the centre lies about one radius behind the surface
+    zoom = dist / ref_distance if ref_distance else 1.0
+    if not recenter and zoom == 1.0 and K_user == K_model:
+        return View(d.astype(np.float32), Q, center, dist, zoom)   # the model's own camera: nothing to resample
+    rays = _pixel_rays(K_model, zoom) @ Q.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uu = np.rint(K_user.fx * rays[..., 0] / rays[..., 2] + K_user.cx)
+        vv = np.rint(K_user.fy * rays[..., 1] / rays[..., 2] + K_user.cy)
+    ok = (rays[..., 2] > 0) & (uu >= 0) & (uu < K_user.width) & (vv >= 0) & (vv < K_user.height)
+    out = np.zeros((K_model.height, K_model.width))
+    ui, vi = uu[ok].astype(int), vv[ok].astype(int)
+    z = d[vi, ui]
+    hit = z > 0
+    # the user point on that pixel, expressed in the virtual frame: z' = (Q^T p)_z
+    p = np.stack([(ui[hit] - K_user.cx) * z[hit] / K_user.fx, (vi[hit] - K_user.cy) * z[hit] / K_user.fy, z[hit]], -1)
+    zv = p @ Q[:, 2]
+    if ref_distance:
+        zv = zv - dist + ref_distance
+    vals = np.zeros(ok.sum())
+    vals[hit] = zv
+    out[ok] = vals
+    return View(out.astype(np.float32), Q, center, dist, zoom)

@@ -1,0 +1,193 @@
+"""Evaluating a model on rendered views of a dataset: the metrics JSON.
+
+:func:`evaluate_model` renders each test object from ``views`` random viewpoints with the
+model's own camera and distances (its training render settings), predicts, and scores.
+Keys of the returned dict (stable; the evaluation notebooks and outside checks read them):
+
+``method`` (``hbeo``, ``beo``, ``icp``, ``voxcnn``), ``pose`` (``known``, ``1dof``, ``3dof``: what
+the method had to estimate), ``given_class`` (the true class was given: accuracy is then 1 by
+construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
+the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines),
+``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
+``n_objects``, ``n_queries``
+``accuracy``                         fraction of queries with the right class
+``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
+                                     ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
+                                     turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`);
+                                     ``within_30``, ``within_30_sym``: fraction of queries within 30
+                                     degrees (Acc@pi/6; a median hides a bimodal error, e.g. flips)
+``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.subspace.metrics`) and
+                                     ``empty_fraction`` (queries whose completed grid is empty)
+``completion_baseline``              the trivial answer "the class's mean training shape" (the
+                                     subspace's class mean thresholded at 0.5), scored like
+                                     ``completion``: ``predicted_class`` (the model's class) and
+                                     ``true_class`` ({``edt``, ``naive``, ``iou``} each), and
+                                     ``true_class_iou_t03`` (threshold 0.3); absent when the method
+                                     has no class means
+``runtime_ms``                       ``mean_per_query``, ``median_per_query`` (preprocessing + network +
+                                     back-projection, one view per call, after one warm-up call)
+``per_class``                        {class: {``n``, ``accuracy``, ``pose_mean_deg``,
+                                     ``pose_median_deg``, ``pose_median_sym_deg``, ``pose_within_30``, ``edt``,
+                                     ``naive``, ``iou``}}
+``confusion``                        rows: true class, columns: predicted class (counts)
+``per_query``                        columns over queries (for distributions): ``class``, ``pred``,
+                                     ``pose_deg``, ``pose_sym_deg``, ``edt``, ``naive``, ``iou``, ``ms``
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from hbeo import __version__
+from hbeo.conventions import UP_SYMMETRY, geodesic_deg
+from hbeo.data.gridset import record_grid
+from hbeo.subspace.metrics import edt_error, iou, naive_error
+
+
+def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> np.ndarray:
+    """Geodesic error (degrees) modulo ``order``-fold turns of the object about its up axis (+z):
+    min over k of angle(R_pred, R_true @ Rz(2 pi k / order))."""
+    errs = []
+    for k in range(max(1, order)):
+        a = 2 * np.pi * k / max(1, order)
+        Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+        errs.append(geodesic_deg(R_pred, R_true @ Rz))
+    return np.min(errs, axis=0)
+
+
+def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
+                   noise: bool = False, per_class: int | None = None, progress: bool = True,
+                   chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1) -> dict:
+    """Render, predict and score; returns the metrics dict described in the module docstring.
+
+    Views come from :class:`hbeo.render.renderset.ObjectViews` with the model's render settings, ``views``
+    per object, ``seed``, ``noise`` and (if given) ``sampler``: object i of the split gets the same
+    random stream a rendered set of that split would give it.
+
+    ``method``: None for the HBEO ``model`` itself, or a baseline (:mod:`hbeo.baselines.methods`) whose
+    ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true, rng)`` answers
+    each view; ``model`` then only fixes the camera and the views. ``pose``: the baseline's pose
+    setting (``known``, ``1dof``, ``3dof``); HBEO always estimates all three degrees of freedom.
+    ``rolls``: HBEO's test-time roll averaging (:meth:`hbeo.model.inference.HBEO.predict`; bins models).
+    """
+    from hbeo.baselines.methods import GIVEN_CLASS
+    from hbeo.render.renderset import ObjectViews, RenderSettings
+    if views < 1:
+        raise ValueError(f"views must be >= 1, got {views}")
+    over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
+    rs = RenderSettings.from_dict({**model.settings.get("render", {}), **over})
+    K = model.intrinsics
+    classes = tuple(model.classes)
+    means = class_mean_grids(model.subspace) if getattr(model, "subspace", None) is not None else None
+    name, pose = ("hbeo", "3dof") if method is None else (method.name, pose or method.default_pose)
+    records = dataset.records(split=split, per_class=per_class)
+    if not records:
+        raise ValueError(f"{dataset.name}: no objects in split {split!r}")
+    rows = []
+    bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
+    warm = False
+    for start in range(0, len(records), chunk):
+        # render a chunk with the renderer closed afterwards, then predict it: the renderer's
+        # threads would otherwise compete with the network's and distort the runtimes
+        viewer, batch = ObjectViews(rs), []
+        try:
+            for i in range(start, min(start + chunk, len(records))):
+                batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
+        finally:
+            viewer.close()
+        for i, rec, v, truth in batch:
+            for j in range(views):
+                depth = v["depth"][j].astype(np.float32)
+                if not (depth > 0).any():
+                    continue          # nothing visible (cannot happen with sane settings; never scored as 0)
+                if method is None:
+                    if not warm:      # one untimed call: first-call set-up is not a per-query cost
+                        model.predict(depth, K, rolls=rolls)
+                        warm = True
+                    p = model.predict(depth, K, rolls=rolls)
+                    pred, R_pred, grid, ms = p.class_names[0], p.rotation[0], p.grids[0], p.timing_ms["total"]
+                else:
+                    query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
+                                 object_size=rs.object_size, pose=pose,
+                                 label_true=classes.index(rec.cls) if (name, pose) in GIVEN_CLASS else None)
+                    if not warm:
+                        method.predict_view(depth, K, rng=np.random.default_rng([seed, 1]), **query)
+                        warm = True
+                    t0 = time.perf_counter()
+                    out = method.predict_view(depth, K, rng=np.random.default_rng([seed, 2, i, j]), **query)
+                    ms = (time.perf_counter() - t0) * 1e3
+                    pred = classes[int(np.argmax(out["probabilities"]))]
+                    R_pred, grid = out["rotation"], out["grid"]
+                row = {"class": rec.cls, "pred": pred, "R_true": v["rotation"][j], "R_pred": R_pred,
+                       "grid": grid, "truth": truth, "ms": ms}
+                if means is not None:
+                    row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
+                rows.append(row)
+            bar.update(1)
+    bar.close()
+    out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
+    precision = getattr(model, "precision", "float32") if method is None else None
+    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
+            "rolls": rolls if method is None else None, **out}
+
+
+def class_mean_grids(subspace) -> dict[str, np.ndarray]:
+    """{class: float (30, 30, 30) mean training grid} from a fitted :class:`~hbeo.subspace.basis.ObjectSubspace`."""
+    return {c: subspace.eigen_object(c).astype(np.float32) for c in subspace.classes_}
+
+
+def _completion(truth: np.ndarray, pred: np.ndarray) -> dict:
+    return {"edt": float(edt_error(truth, pred).mean()), "naive": float(naive_error(truth, pred).mean()),
+            "iou": float(iou(truth, pred).mean())}
+
+
+def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, seed: int, sampler: str,
+              noise: bool, n_objects: int) -> dict:
+    """Metrics dict from per-query rows (class, pred, R_true, R_pred, grid, truth, ms)."""
+    cls = np.array([r["class"] for r in rows])
+    correct = np.array([r["class"] == r["pred"] for r in rows])
+    Rt, Rp = np.stack([r["R_true"] for r in rows]), np.stack([r["R_pred"] for r in rows])
+    raw = geodesic_deg(Rp, Rt)
+    sym = np.array([symmetric_pose_error(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
+    truth, pred = np.stack([r["truth"] for r in rows]), np.stack([r["grid"] for r in rows])
+    edt, nai, io = edt_error(truth, pred), naive_error(truth, pred), iou(truth, pred)
+    per = {}
+    for c in classes:
+        m = cls == c
+        if m.any():
+            per[c] = {"n": int(m.sum()), "accuracy": float(correct[m].mean()),
+                      "pose_mean_deg": float(raw[m].mean()), "pose_median_deg": float(np.median(raw[m])),
+                      "pose_median_sym_deg": float(np.median(sym[m])),
+                      "pose_within_30": float((raw[m] < 30).mean()), "edt": float(edt[m].mean()),
+                      "naive": float(nai[m].mean()), "iou": float(io[m].mean())}
+    index = {c: i for i, c in enumerate(classes)}
+    conf = np.zeros((len(classes), len(classes)), int)
+    for r in rows:
+        conf[index[r["class"]], index[r["pred"]]] += 1
+    return {"hbeo_version": __version__, "dataset": dataset, "split": split, "views": views, "seed": seed,
+            "sampler": sampler, "noise": bool(noise), "n_objects": n_objects, "n_queries": len(rows),
+            "accuracy": float(correct.mean()),
+            "pose_error_deg": {"mean": float(raw.mean()), "median": float(np.median(raw)),
+                               "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),
+                               "within_30": float((raw < 30).mean()), "within_30_sym": float((sym < 30).mean())},
+            "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
+                           "empty_fraction": float((pred.reshape(len(pred), -1).sum(1) == 0).mean())},
+            "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
+                           "median_per_query": float(np.median([r["ms"] for r in rows]))},
+            "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
+            "per_query": {"class": cls.tolist(), "pred": [r["pred"] for r in rows], "pose_deg": raw.round(4).tolist(),
+                          "pose_sym_deg": sym.round(4).tolist(), "edt": edt.round(6).tolist(),
+                          "naive": nai.round(6).tolist(), "iou": io.round(6).tolist(),
+                          "ms": [round(float(r["ms"]), 4) for r in rows]},
+            **_baseline(rows, truth)}
+
+
+def _baseline(rows: list[dict], truth: np.ndarray) -> dict:
+    if not rows or "mean_pred" not in rows[0]:
+        return {}
+    mp, mt = np.stack([r["mean_pred"] for r in rows]), np.stack([r["mean_true"] for r in rows])
+    return {"completion_baseline": {"predicted_class": _completion(truth, mp >= 0.5),
+                                    "true_class": _completion(truth, mt >= 0.5),
+                                    "true_class_iou_t03": float(iou(truth, mt >= 0.3).mean())}}

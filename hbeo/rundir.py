@@ -1,0 +1,177 @@
+"""`RunDir`: the one owner of a run folder's layout.
+
+A run (``results/<profile>-<dataset>/`` by default) holds every product of the pipeline, each
+written by one step and read by the later ones. Only this module spells their file names; every
+other module and every notebook asks a :class:`RunDir` for a path::
+
+    grids_<split>.npz            data: the split's 30^3 grids and labels (notebook 01)
+    subspace.npz                 subspace: the shared VBPCA basis (notebook 02)
+    render_<split>/              render: the rendered depth set, manifest.json written last (notebook 03)
+    model.hbeo                   model: the trained HBEO model file (notebook 04); others model_<name>.hbeo
+    train_<model stem>/          model: checkpoint.pt and train_log.csv of that model's training
+    beo.npz, icp.npz, voxcnn.hbeo  baselines: fitted baseline files
+    partial_train*.npz           baselines: the 3-D CNN's cached partial training grids
+    eval_<method>_<pose>.json    reproduction: metrics of one method on the test views
+    NN_<name>.png / .csv / .md   reproduction: the notebooks' figures and tables
+    manifest.json                reproduction: provenance (commit, versions, hardware, wall times)
+    failures.json                any batch step: the items it skipped and why
+
+Complete means "written to the end": every file here is written through a temporary name and
+renamed (:mod:`hbeo.storage`), and a rendered set counts only once its manifest exists, so
+"exists" and "complete" coincide for files, and :meth:`RunDir.status` reports both kinds.
+
+Imports nothing from the pipeline subpackages, so every layer may use it.
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from hbeo import config
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+#: The baseline files, by method (``hbeo``'s own file is :attr:`RunDir.model`).
+BASELINE_FILES = {"beo": "beo.npz", "icp": "icp.npz", "voxcnn": "voxcnn.hbeo"}
+MODEL_SUFFIX = ".hbeo"
+CHECKPOINT = "checkpoint.pt"
+TRAIN_LOG = "train_log.csv"
+RENDER_MANIFEST = "manifest.json"
+
+
+def _check_name(what: str, name: str) -> str:
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ValueError(f"{what} must be a plain file name (letters, digits, '_', '-', '.'), got {name!r}")
+    return name
+
+
+class RunDir:
+    """A run folder: ``RunDir(path)`` for an existing or new folder, :meth:`for_run` for the default
+    ``<results>/<profile>-<dataset>`` place. Paths are returned, never opened; folders are created
+    only by :meth:`create` (and by the writers, through :mod:`hbeo.storage`)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path).expanduser()
+
+    @classmethod
+    def for_run(cls, profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> "RunDir":
+        """The run folder of ``profile`` on ``dataset`` (created): ``out_dir`` if given (a relative
+        path is taken from the repository root), else ``<HBEO_RESULTS>/<profile>-<dataset>``."""
+        return cls(config.run_path(profile, dataset, out_dir)).create()
+
+    def create(self) -> "RunDir":
+        self.path.mkdir(parents=True, exist_ok=True)
+        return self
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.path)!r})"
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, RunDir) and self.path == other.path
+
+    def __hash__(self) -> int:
+        return hash(self.path)
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    # --- data (notebook 01) ---
+    def grids(self, split: str) -> Path:
+        """The grid set of ``split`` (``train`` or ``test``)."""
+        return self.path / f"grids_{_check_name('split', split)}.npz"
+
+    # --- subspace (notebook 02) ---
+    @property
+    def subspace(self) -> Path:
+        return self.path / "subspace.npz"
+
+    # --- render (notebook 03) ---
+    def renders(self, split: str) -> Path:
+        """The rendered depth set of ``split`` (a folder; complete once its manifest exists)."""
+        return self.path / f"render_{_check_name('split', split)}"
+
+    def render_manifest(self, split: str) -> Path:
+        return self.renders(split) / RENDER_MANIFEST
+
+    # --- model (notebook 04) ---
+    @property
+    def model(self) -> Path:
+        """The run's HBEO model file (the one notebooks 05-07 evaluate)."""
+        return self.path / f"model{MODEL_SUFFIX}"
+
+    def model_file(self, name: str | None = None) -> Path:
+        """A model file of this run: the default one, or ``name`` (``model_6d.hbeo``; the suffix
+        is added when missing)."""
+        if name is None:
+            return self.model
+        name = _check_name("model name", name)
+        return self.path / (name if name.endswith(MODEL_SUFFIX) else name + MODEL_SUFFIX)
+
+    def training(self, model_file: str | os.PathLike) -> Path:
+        """The training folder (checkpoint, log) of the model written to ``model_file``."""
+        return self.path / f"train_{Path(model_file).stem}"
+
+    def checkpoint(self, model_file: str | os.PathLike) -> Path:
+        return self.training(model_file) / CHECKPOINT
+
+    def train_log(self, model_file: str | os.PathLike) -> Path:
+        return self.training(model_file) / TRAIN_LOG
+
+    # --- baselines ---
+    def baseline(self, method: str) -> Path:
+        """The fitted file of baseline ``method`` (``beo``, ``icp``, ``voxcnn``)."""
+        try:
+            return self.path / BASELINE_FILES[method]
+        except KeyError:
+            raise ValueError(f"unknown baseline {method!r}; expected one of {', '.join(BASELINE_FILES)}") from None
+
+    def partial_train(self, views: int | None = None) -> Path:
+        """The 3-D CNN's cache of partial training grids (all rendered views, or the first ``views``)."""
+        return self.path / ("partial_train.npz" if views is None else f"partial_train_v{int(views)}.npz")
+
+    # --- reproduction (notebooks 05-07) ---
+    def evaluation(self, method: str, pose: str) -> Path:
+        """Metrics JSON of ``method`` under pose setting ``pose`` on this run's test views."""
+        return self.path / f"eval_{_check_name('method', method)}_{_check_name('pose', pose)}.json"
+
+    def figure(self, name: str) -> Path:
+        """A figure of a notebook, ``name`` like ``05_confusion``."""
+        return self.path / f"{_check_name('figure name', name)}.png"
+
+    def table(self, name: str, ext: str = "csv") -> Path:
+        """A table of a notebook, ``name`` like ``05_table1``; ``ext`` ``csv`` or ``md``."""
+        if ext not in ("csv", "md"):
+            raise ValueError(f"table ext must be 'csv' or 'md', got {ext!r}")
+        return self.path / f"{_check_name('table name', name)}.{ext}"
+
+    def notebook(self, name: str) -> Path:
+        """The executed copy of notebook ``name`` (``01_voxelize``)."""
+        return self.path / f"{_check_name('notebook', name)}.ipynb"
+
+    @property
+    def manifest(self) -> Path:
+        return self.path / "manifest.json"
+
+    @property
+    def failures(self) -> Path:
+        return self.path / "failures.json"
+
+    # --- what is there ---
+    def status(self) -> dict[str, bool]:
+        """Which pipeline products are complete: ``grids_train``, ``grids_test``, ``subspace``,
+        ``render_train``, ``render_test``, ``model`` and one entry per baseline file."""
+        out = {f"grids_{s}": self.grids(s).is_file() for s in ("train", "test")}
+        out["subspace"] = self.subspace.is_file()
+        out.update({f"render_{s}": self.render_manifest(s).is_file() for s in ("train", "test")})
+        out["model"] = self.model.is_file()
+        out.update({m: self.baseline(m).is_file() for m in BASELINE_FILES})
+        return out
+
+    def evaluations(self) -> list[Path]:
+        """The metrics JSONs present, sorted."""
+        return sorted(self.path.glob("eval_*_*.json"))
