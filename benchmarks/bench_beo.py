@@ -32,6 +32,7 @@ from hbeo.reproduction.evaluate import symmetric_pose_error
 from hbeo.data.gridset import record_grid
 from hbeo.render.poses import ViewSampler
 from hbeo.render.renderer import Renderer, record_mesh
+from hbeo.rotations import geodesic_deg
 from hbeo.subspace.basis import ObjectSubspace
 
 TARGET_S = {"known": 0.1, "1dof": 5.0, "3dof": 60.0}
@@ -72,7 +73,7 @@ def run(beo: BEO, views, pose: str, given: bool):
         out = beo.predict_view(depth, K, R, t, pose=pose, rng=1000 + q, label_true=label if given else None)
         ms.append((time.perf_counter() - t0) * 1e3)
         hit.append(out["label"] == label)
-        raw.append(float(C.geodesic_deg(out["rotation"], R)))
+        raw.append(float(geodesic_deg(out["rotation"], R)))
         sym.append(float(symmetric_pose_error(out["rotation"], R, C.UP_SYMMETRY.get(beo.classes_[label], 1))))
     return {"ms": float(np.mean(ms)), "acc": float(np.mean(hit)), "raw_med": float(np.median(raw)),
             "raw_mean": float(np.mean(raw)), "sym_med": float(np.median(sym)), "sym_mean": float(np.mean(sym)),

@@ -27,6 +27,7 @@ from hbeo.render import poses
 from hbeo.render import renderer as render
 from hbeo.reproduction.evaluate import symmetric_pose_error
 from hbeo.baselines.icp import ICPBaseline
+from hbeo.rotations import geodesic_deg
 
 TARGET_MS = 500.0
 
@@ -79,7 +80,7 @@ def main():
             s = time.perf_counter()
             out = icp.predict_view(d, K, R, t, pose=pose, label_true=rec.cls)
             ms.append((time.perf_counter() - s) * 1e3)
-            raw.append(C.geodesic_deg(out["rotation"], R))
+            raw.append(geodesic_deg(out["rotation"], R))
             sym.append(symmetric_pose_error(out["rotation"], R, C.UP_SYMMETRY.get(rec.cls, 1)))
         ms, raw, sym = np.array(ms), np.array(raw), np.array(sym)
         n = icp.n_init if pose == "3dof" else icp.n_yaw

@@ -24,7 +24,7 @@ from hbeo.data.gridset import build_gridset
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, NetConfig
 from hbeo.render.renderer import Renderer, record_mesh
-from hbeo.render.renderset import RenderSettings
+from hbeo.render.views import RenderSettings
 from hbeo.subspace.basis import ObjectSubspace
 
 

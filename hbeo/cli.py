@@ -11,8 +11,7 @@ import warnings
 from pathlib import Path
 
 from hbeo.errors import HBEOError
-
-NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
+from hbeo.rundir import DEFAULT_MODEL, RunDir
 
 
 def _dataset_arg(p, profile="cpu"):
@@ -59,11 +58,11 @@ def cmd_voxelize(args) -> int:
     from hbeo.data.gridset import build_gridset
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
-    out = config.run_dir(prof.name, args.dataset, args.out)
+    run = RunDir.for_run(prof.name, args.dataset, args.out)
     for split in ("train", "test"):
         recs = datasets.select(ds, split, prof)
         gs = build_gridset(ds, recs, split, workers=args.workers or prof.workers)
-        path = gs.save(out / f"grids_{split}.npz")
+        path = gs.save(run.grids(split))
         print(f"{split}: {len(gs)} grids -> {path}")
     return 0
 
@@ -74,26 +73,27 @@ def cmd_subspace(args) -> int:
     from hbeo import config
     from hbeo.data import datasets
     from hbeo.data.gridset import build_gridset
+    from hbeo.storage import atomic_text
     from hbeo.subspace.basis import ObjectSubspace
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
-    out = config.run_dir(prof.name, args.dataset, args.out)
+    run = RunDir.for_run(prof.name, args.dataset, args.out)
     sets = {s: build_gridset(ds, datasets.select(ds, s, prof), s, workers=prof.workers) for s in ("train", "test")}
     if args.components is not None:
         sub = ObjectSubspace(n_components=args.components)
     else:
         sub = ObjectSubspace(variance=args.variance, shared_dim=args.shared_dim)
     sub.fit(sets["train"].grids, sets["train"].labels, sets["train"].classes)
-    sub.save(out / "subspace.npz")
+    sub.save(run.subspace)
     counts = pd.DataFrame({"train objects": sets["train"].counts(), "components": sub.n_components_})
     print(f"\nper-class components (variance fraction {sub.variance_used_}; paper: 30-70 per class at 0.6):")
     print(counts.to_string())
-    print(f"shared dimension: {sub.dim_} (paper: 344)   -> {out / 'subspace.npz'}")
+    print(f"shared dimension: {sub.dim_} (paper: 344)   -> {run.subspace}")
     known = completion.random_mask(sets["test"].grids.shape, args.known, seed=args.seed)
     rows = {}
     for mode, mask in (("full", None), ("partial", known)):
         df = completion.evaluate(sub, sets["test"], mask, method=args.method)
-        df.to_csv(out / f"subspace_completion_{mode}.csv", index=False)
+        atomic_text(run.table(f"subspace_completion_{mode}"), df.to_csv(index=False))
         rows[mode] = completion.by_class(df)
     table = pd.concat({m: r[["edt", "naive"]] for m, r in rows.items()}, axis=1)
     print(f"\ntest completion errors, mean per class (full projection; partial from a random "
@@ -102,26 +102,27 @@ def cmd_subspace(args) -> int:
     summary = {"dataset": ds.name, "profile": prof.name, "dim": sub.dim_, "variance_used": sub.variance_used_,
                "n_components": sub.n_components_, "known_fraction": args.known, "seed": args.seed,
                "method": args.method, "errors": {m: r.round(6).to_dict(orient="index") for m, r in rows.items()}}
-    (out / "subspace_summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_text(run.subspace_summary, json.dumps(summary, indent=2))
     return 0
 
 
 def cmd_render(args) -> int:
     from hbeo import config
     from hbeo.data import datasets
-    from hbeo.render.renderset import RenderSettings, render_set
+    from hbeo.render.renderset import render_set
+    from hbeo.render.views import RenderSettings
     from hbeo.subspace.basis import ObjectSubspace
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
-    out = config.run_dir(prof.name, args.dataset, args.out)
-    sub_path = Path(args.subspace) if args.subspace else out / "subspace.npz"
+    run = RunDir.for_run(prof.name, args.dataset, args.out)
+    sub_path = Path(args.subspace) if args.subspace else run.subspace
     subspace = ObjectSubspace.load(sub_path) if (args.subspace or sub_path.exists()) else None
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler,
                                            noise=args.noise, backend=args.backend, seed=args.seed)
     splits = ("train", "test") if args.split == "both" else (args.split,)
     for split in splits:
         recs = datasets.select(ds, split, prof)
-        m = render_set(ds, recs, split, out / f"render_{split}", settings, subspace=subspace,
+        m = render_set(ds, recs, split, run.renders(split), settings, subspace=subspace,
                        workers=args.workers or prof.workers, objects_per_shard=args.objects_per_shard,
                        progress=not args.quiet)
         rate = (f"{m.images_per_s:.1f} images/s" if m.images_per_s else "already rendered, 0 new images")
@@ -145,11 +146,11 @@ def cmd_train(args) -> int:
     from hbeo import config
     from hbeo.model.fit import ViewOptions, fit_model
     from hbeo.model.pipeline import ensure_render
-    from hbeo.render.renderset import RenderSettings
+    from hbeo.render.views import RenderSettings
     prof = config.get_profile(args.profile)
     weights = _loss_weights(args.loss_weights)
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
-    run = config.run_dir(prof.name, args.dataset, args.out)
+    run = RunDir.for_run(prof.name, args.dataset, args.out)
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler)
     ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
@@ -212,8 +213,53 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+def _same_predictions(legacy, converted) -> None:
+    """DataError unless the converted file predicts bit-identically to the old file's content put
+    together the way the old loader did (4 synthetic depth images / partial grids, fixed seed)."""
+    import io
+    import numpy as np
+    from hbeo.errors import DataError
+    b, rng = legacy.blob, np.random.default_rng(0)
+    if legacy.kind == "hbeo":
+        from hbeo.conventions import Intrinsics
+        from hbeo.model.inference import HBEO
+        from hbeo.model.network import HBEONet, NetConfig
+        from hbeo.subspace.basis import ObjectSubspace
+        net = HBEONet(NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in b["net_cfg"].items()}))
+        net.load_state_dict(b["state_dict"])
+        old = HBEO(net, ObjectSubspace.load(io.BytesIO(b["subspace"])), Intrinsics(*b["intrinsics"]),
+                   b["classes"], b["settings"])
+        K = old.intrinsics
+        v, u = np.mgrid[:K.height, :K.width]
+        depth = []
+        for z, cu, cv, r in zip(rng.uniform(1.4, 2.0, 4), rng.uniform(0.35, 0.65, 4) * K.width,
+                                rng.uniform(0.35, 0.65, 4) * K.height, rng.uniform(0.12, 0.3, 4) * K.width):
+            q = 1 - ((u - cu) ** 2 + (v - cv) ** 2) / r ** 2           # an ellipsoid's near side
+            depth.append(np.where(q > 0, z - 0.3 * np.sqrt(np.clip(q, 0, None)), 0.0))
+        a, c = old.predict(np.stack(depth), K), HBEO.load(converted).predict(np.stack(depth), K)
+        pairs = [(getattr(a, f), getattr(c, f)) for f in ("probabilities", "rotation", "translation", "coeffs",
+                                                         "grids")]
+    else:
+        from hbeo.baselines.voxcnn import VoxCNN, VoxCNNBaseline, VoxCNNConfig
+        net = VoxCNN(VoxCNNConfig.from_dict(b["net_cfg"]))
+        net.load_state_dict(b["state_dict"])
+        filled = rng.random((4, 30, 30, 30)) < 0.1
+        known = filled | (rng.random((4, 30, 30, 30)) < 0.4)
+        pairs = zip(VoxCNNBaseline(net, b["classes"], b["settings"]).predict_partial(filled, known),
+                    VoxCNNBaseline.load(converted).predict_partial(filled, known))
+    if not all(np.array_equal(x, y) for x, y in pairs):
+        raise DataError(converted, "the converted model predicts differently from the old file; not written")
+
+
+def cmd_convert_model(args) -> int:
+    from hbeo.model.modelfile import convert_legacy
+    kind, path = convert_legacy(args.old, args.new, check=_same_predictions)
+    print(f"{args.old} -> {path}: {kind} model in the current format (weights and predictions checked identical)")
+    return 0
+
+
 def cmd_reproduce(args) -> int:
-    from hbeo.reproduction.report import run_notebooks
+    from hbeo.reproduction.notebooks import run_notebooks
     run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out,
                   only=args.only)
     return 0
@@ -287,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=float, help="distance-insensitive input: zoom to this object distance (m)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--name", default="model.hbeo", help="model file name in the run folder (model.hbeo)")
+    p.add_argument("--name", default=DEFAULT_MODEL, help=f"model file name in the run folder ({DEFAULT_MODEL})")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
     p = sub.add_parser("predict", help="class, pose and completed shape from one depth image")
@@ -324,6 +370,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="metrics JSON (keys: see hbeo/evaluate.py)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)
+    p = sub.add_parser("convert-model", help="rewrite an old-format (torch pickle) model file in the current "
+                                             "format, reading it without running code it may carry")
+    p.add_argument("old", help="old model file (model.hbeo or voxcnn.pt written by hbeo before format 2)")
+    p.add_argument("new", help="new model file (may be OLD itself: replaced once the conversion checks out)")
+    p.set_defaults(func=cmd_convert_model)
     p = sub.add_parser("reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")

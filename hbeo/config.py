@@ -39,6 +39,24 @@ class Profile:
     kernel: int = 3                 #: convolution kernel size (the paper does not state it; 3 keeps ~15 M parameters)
     lr: float = 1e-3                #: peak learning rate (AdamW)
     procedural_train_per_class: int = 400   #: procedural objects per class when n_train_per_class is None
+    #: Rotations in BEO's 3-DOF search grid (super-Fibonacci; 400 / 2,048 / 8,192 have a mean nearest-neighbour
+    #: spacing of 27, 15 and 10 degrees): the search costs ~5 ms per candidate at ~80 subspace dimensions on 2 cores.
+    beo_so3_grid: int = 2048
+    #: Test objects per class in BEO's 1-DOF and 3-DOF evaluations (its pose search costs up to a minute per
+    #: 3-DOF query on 2 cores); None: the same objects as every other method (``n_test_per_class``).
+    beo_1dof_test_per_class: int | None = None
+    beo_3dof_test_per_class: int | None = 1
+    needs_gpu: bool = False         #: the reproduction refuses to start without CUDA (unless HBEO_ALLOW_CPU=1)
+    #: The 3-D CNN baseline (:mod:`hbeo.baselines.voxcnn`): its three encoder widths, bottleneck width,
+    #: training epochs, batch size, peak learning rate, rendered views per training object made into
+    #: partial grids (None = all the rendered set has) and BCE weight of filled voxels.
+    voxcnn_channels: tuple[int, int, int] = (32, 64, 128)
+    voxcnn_bottleneck: int = 512
+    voxcnn_epochs: int = 20
+    voxcnn_batch_size: int = 64
+    voxcnn_lr: float = 1e-3
+    voxcnn_views_per_object: int | None = 32
+    voxcnn_pos_weight: float = 1.5
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -47,14 +65,19 @@ class Profile:
 PROFILES: dict[str, Profile] = {
     "ci": Profile("ci", n_train_per_class=6, n_test_per_class=3, views_per_object=8,
                   image_size=(80, 60), epochs=8, batch_size=32, workers=1,
-                  conv_channels=(8, 16, 16, 16), fc=(64, 64, 64)),
+                  conv_channels=(8, 16, 16, 16), fc=(64, 64, 64), beo_so3_grid=400,
+                  voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=64, voxcnn_epochs=3, voxcnn_batch_size=16,
+                  voxcnn_lr=3e-3, voxcnn_views_per_object=None),
     # cpu: every training object (ModelNet10: 3,991), few views each: object variety matters more
     # than views per object; small images keep an epoch of ~80k images near a minute on 2 cores.
     "cpu": Profile("cpu", n_train_per_class=None, n_test_per_class=20, views_per_object=20,
                    image_size=(80, 60), epochs=10, batch_size=64, workers=2,
-                   conv_channels=(32, 64, 128, 128), fc=(512, 256, 256), procedural_train_per_class=200),
+                   conv_channels=(32, 64, 128, 128), fc=(512, 256, 256), procedural_train_per_class=200,
+                   beo_1dof_test_per_class=10, voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=128,
+                   voxcnn_epochs=5, voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3),
     "full": Profile("full", n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
-                    image_size=(320, 240), epochs=40, batch_size=128, workers=8),   # the paper's network
+                    image_size=(320, 240), epochs=40, batch_size=128, workers=8,     # the paper's network
+                    beo_so3_grid=8192, beo_1dof_test_per_class=20, beo_3dof_test_per_class=5, needs_gpu=True),
 }
 
 #: Procedural objects per class when a profile says "all" (the procedural source is unbounded).
@@ -121,10 +144,3 @@ def run_path(profile: str, dataset: str, out_dir: str | os.PathLike | None = Non
     base = Path(os.environ.get("HBEO_RESULTS", REPO_ROOT / "results"))
     safe = str(dataset).replace(os.sep, "_").strip("_") or "dataset"
     return base / f"{profile}-{safe}"
-
-
-def run_dir(profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> Path:
-    """Deprecated during the redesign: use :meth:`hbeo.rundir.RunDir.for_run`."""
-    p = run_path(profile, dataset, out_dir)
-    p.mkdir(parents=True, exist_ok=True)
-    return p

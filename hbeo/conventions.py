@@ -30,7 +30,7 @@ Pose
     translation t (metres, camera frame), a point x of the object (metres, origin at the
     centre of its bounding box) is seen at ``R @ x + t``. Encoded as the paper's 3-element
     axis-angle vector (rotation vector: axis * angle, radians). Pose errors are geodesic
-    angles in degrees.
+    angles in degrees. Every rotation is built and converted by :mod:`hbeo.rotations`.
 
 Rendering scale
     Before rendering, a mesh is centred on its bounding-box centre (the grid's centre) and
@@ -42,13 +42,14 @@ Grid coordinates
     [i, i+1) x [j, j+1) x [k, k+1); its centre is (i+0.5, j+0.5, k+0.5).
     ``u = (x - center) * scale + GRID_CENTER`` with ``scale = OBJECT_VOXELS /
     longest_side`` (voxels per object unit) and ``GRID_CENTER`` = 15.
+
+Imports numpy only; nothing from hbeo.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 #: ModelNet10 class names, in the index order of the 3D ShapeNets / VoxNet grids.
 CLASSES: tuple[str, ...] = (
@@ -179,25 +180,6 @@ def backproject(depth: np.ndarray, K: Intrinsics) -> tuple[np.ndarray, np.ndarra
 
 
 # --------------------------------------------------------------------------- pose
-
-def rotation_to_axis_angle(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) -> axis-angle vectors (..., 3), radians, angle in [0, pi]."""
-    R = np.asarray(R, dtype=np.float64)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
-
-
-def axis_angle_to_rotation(v: np.ndarray) -> np.ndarray:
-    """Axis-angle vectors (..., 3), radians -> rotation matrices (..., 3, 3)."""
-    v = np.asarray(v, dtype=np.float64)
-    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(v.shape[:-1] + (3, 3))
-
-
-def geodesic_deg(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
-    """Angle (degrees) of the rotation taking R1 to R2, for matching batches (..., 3, 3)."""
-    R1, R2 = np.asarray(R1, np.float64), np.asarray(R2, np.float64)
-    tr = np.einsum("...ji,...ji->...", R1, R2)          # trace(R1^T R2)
-    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
-
 
 #: Near-symmetries of the classes: order n of turns by 360/n degrees about the object's up
 #: axis (+z) that leave the class's typical shape nearly unchanged (tables: 90 degrees; desks,

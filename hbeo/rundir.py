@@ -6,13 +6,16 @@ other module and every notebook asks a :class:`RunDir` for a path::
 
     grids_<split>.npz            data: the split's 30^3 grids and labels (notebook 01)
     subspace.npz                 subspace: the shared VBPCA basis (notebook 02)
+    subspace_summary.json        subspace: what ``python -m hbeo subspace`` measured
     render_<split>/              render: the rendered depth set, manifest.json written last (notebook 03)
     model.hbeo                   model: the trained HBEO model file (notebook 04); others model_<name>.hbeo
     train_<model stem>/          model: checkpoint.pt and train_log.csv of that model's training
     beo.npz, icp.npz, voxcnn.hbeo  baselines: fitted baseline files
     partial_train*.npz           baselines: the 3-D CNN's cached partial training grids
     eval_<method>_<pose>.json    reproduction: metrics of one method on the test views
+    eval_<name>.json             reproduction: other evaluations, named by whoever ran them
     NN_<name>.png / .csv / .md   reproduction: the notebooks' figures and tables
+    NN_<name>.ipynb              reproduction: the executed notebooks
     manifest.json                reproduction: provenance (commit, versions, hardware, wall times)
     failures.json                any batch step: the items it skipped and why
 
@@ -35,6 +38,8 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 #: The baseline files, by method (``hbeo``'s own file is :attr:`RunDir.model`).
 BASELINE_FILES = {"beo": "beo.npz", "icp": "icp.npz", "voxcnn": "voxcnn.hbeo"}
 MODEL_SUFFIX = ".hbeo"
+#: The name of a run's own HBEO model file (:attr:`RunDir.model`).
+DEFAULT_MODEL = f"model{MODEL_SUFFIX}"
 CHECKPOINT = "checkpoint.pt"
 TRAIN_LOG = "train_log.csv"
 RENDER_MANIFEST = "manifest.json"
@@ -53,6 +58,12 @@ class RunDir:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path).expanduser()
+
+    @classmethod
+    def of(cls, run: "RunDir | str | os.PathLike") -> "RunDir":
+        """``run`` itself if it is a RunDir, else the RunDir at that path (not created): what every
+        function taking a ``run`` argument calls first."""
+        return run if isinstance(run, RunDir) else cls(run)
 
     @classmethod
     def for_run(cls, profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> "RunDir":
@@ -90,6 +101,11 @@ class RunDir:
     def subspace(self) -> Path:
         return self.path / "subspace.npz"
 
+    @property
+    def subspace_summary(self) -> Path:
+        """The JSON summary ``python -m hbeo subspace`` writes (dimension, components, completion errors)."""
+        return self.path / "subspace_summary.json"
+
     # --- render (notebook 03) ---
     def renders(self, split: str) -> Path:
         """The rendered depth set of ``split`` (a folder; complete once its manifest exists)."""
@@ -102,7 +118,7 @@ class RunDir:
     @property
     def model(self) -> Path:
         """The run's HBEO model file (the one notebooks 05-07 evaluate)."""
-        return self.path / f"model{MODEL_SUFFIX}"
+        return self.path / DEFAULT_MODEL
 
     def model_file(self, name: str | None = None) -> Path:
         """A model file of this run: the default one, or ``name`` (``model_6d.hbeo``; the suffix
@@ -138,6 +154,11 @@ class RunDir:
     def evaluation(self, method: str, pose: str) -> Path:
         """Metrics JSON of ``method`` under pose setting ``pose`` on this run's test views."""
         return self.path / f"eval_{_check_name('method', method)}_{_check_name('pose', pose)}.json"
+
+    def named_evaluation(self, name: str) -> Path:
+        """Metrics JSON of an evaluation outside the notebooks' protocol, ``eval_<name>.json``
+        (``scripts/cpu_targets.sh`` writes ``so3_axis_angle``: the whole test split)."""
+        return self.path / f"eval_{_check_name('evaluation name', name)}.json"
 
     def figure(self, name: str) -> Path:
         """A figure of a notebook, ``name`` like ``05_confusion``."""

@@ -5,24 +5,38 @@ leaves a file that looks complete, and no file is ever unpickled:
 
 - :func:`atomic_file` / :func:`atomic_text`: write to a temporary name, then rename;
 - :func:`sha256_file`: the content hash used by manifests and sidecars;
+- :func:`write_sidecar` / :func:`read_sidecar` / :func:`verify_sidecar`: a file's sha256 recorded
+  beside it in ``<name>.sha256`` (``sha256sum`` format: ``<hex digest>  <name>``), so a later run
+  can tell a finished file (download, render shard) from a damaged one;
 - :func:`write_npz` / :func:`read_npz`: arrays plus a JSON ``meta`` entry (grid sets, BEO, ICP,
   subspace), read back with ``allow_pickle=False`` and a :class:`~hbeo.errors.DataError` naming
-  the file.
+  the file;
+- :func:`pack_bits` / :func:`unpack_bits`: boolean arrays (occupancy grids, masks) stored as
+  bit-packed rows, one row of ``ceil(size / 8)`` uint8 per item.
 
-Imports nothing from the rest of the package but :mod:`hbeo.errors`.
+Imports nothing from the rest of the package but :mod:`hbeo.errors` and :mod:`hbeo.conventions`
+(the grid shape).
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
+from hbeo.conventions import RESOLUTION
 from hbeo.errors import DataError
+
+logger = logging.getLogger(__name__)
+
+#: shape of one occupancy grid, the default of :func:`unpack_bits`
+GRID_SHAPE = (RESOLUTION,) * 3
 
 
 @contextmanager
@@ -58,6 +72,71 @@ def sha256_file(path, chunk_size: int = 1 << 20) -> str:
             h.update(chunk)
     return h.hexdigest()
 
+
+# --------------------------------------------------------------------------- checksum sidecars
+
+def sidecar_path(path) -> Path:
+    """Where the checksum of ``path`` is recorded: ``<path>.sha256`` beside it."""
+    path = Path(path)
+    return path.with_name(path.name + ".sha256")
+
+
+def write_sidecar(path, digest: str | None = None) -> str:
+    """Record ``digest`` (the sha256 of ``path``, computed when None) in ``<path>.sha256``,
+    atomically, in ``sha256sum`` format; returns the digest."""
+    path = Path(path)
+    digest = (digest or sha256_file(path)).lower()
+    atomic_text(sidecar_path(path), f"{digest}  {path.name}\n")
+    return digest
+
+
+def read_sidecar(path) -> str | None:
+    """The sha256 recorded for ``path`` (lower-case hex); None if there is no record, or one that
+    cannot be read (logged)."""
+    side = sidecar_path(path)
+    try:
+        token = side.read_text().split()[0].lower()
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError, IndexError):
+        token = ""
+    if re.fullmatch(r"[0-9a-f]{64}", token):
+        return token
+    logger.warning("ignoring unreadable checksum record %s", side)
+    return None
+
+
+def verify_sidecar(path) -> str | None:
+    """The sha256 of ``path`` if the file exists and matches its recorded checksum, else None."""
+    path = Path(path)
+    recorded = read_sidecar(path) if path.is_file() else None
+    if recorded is None:
+        return None
+    digest = sha256_file(path)
+    return digest if digest == recorded else None
+
+
+# --------------------------------------------------------------------------- arrays
+
+def pack_bits(masks) -> np.ndarray:
+    """Boolean arrays (N, ...) -> uint8 (N, ceil(size / 8)): each item's values in C order,
+    eight to a byte (numpy's ``packbits``, first value in the high bit)."""
+    m = np.asarray(masks, dtype=bool)
+    if m.ndim < 2:
+        raise ValueError(f"pack_bits: expected a stack of arrays (N, ...), got shape {m.shape}")
+    return np.packbits(m.reshape(len(m), int(np.prod(m.shape[1:]))), axis=1)
+
+
+def unpack_bits(packed, shape=GRID_SHAPE) -> np.ndarray:
+    """Rows (N, ceil(size / 8)) written by :func:`pack_bits` -> bool (N, *shape); ``shape`` is
+    one item's (default: a 30^3 occupancy grid). ValueError if the rows do not fit ``shape``."""
+    p = np.asarray(packed)
+    shape = tuple(int(n) for n in shape)
+    count = int(np.prod(shape))
+    if p.dtype != np.uint8 or p.ndim != 2 or p.shape[1] != (count + 7) // 8:
+        raise ValueError(f"unpack_bits: expected uint8 rows (N, {(count + 7) // 8}) holding items of "
+                         f"shape {shape}, got {p.dtype} {p.shape}")
+    return np.unpackbits(p, axis=1, count=count).astype(bool).reshape((len(p),) + shape)
 
 
 def write_npz(path, meta: dict | None, compressed: bool = False, **arrays) -> Path:

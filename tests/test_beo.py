@@ -7,12 +7,13 @@ import pytest
 from hbeo import conventions as C
 from hbeo.data import datasets
 from hbeo.render import renderer as render
-from hbeo.baselines.beo import BEO, grid_spacing, rot_z, so3_grid
+from hbeo.baselines.beo import BEO, grid_spacing, so3_grid
 from hbeo.errors import DataError
 from hbeo.data.gridset import record_grid
 from hbeo.subspace.partial import depth_to_partial_many
-from hbeo.render.poses import ViewSampler, upright
+from hbeo.render.poses import ViewSampler
 from hbeo.render.renderer import Renderer, record_mesh
+from hbeo.rotations import geodesic_deg, yaw_elevation_to_matrix, z_angle_to_matrix
 from hbeo.subspace.basis import ObjectSubspace
 
 pytestmark = pytest.mark.skipif(not render.embree_available(), reason="embreex not installed")
@@ -75,7 +76,7 @@ def test_projection_solves_the_normal_equations(beo, data, views):
     squared error of the reconstruction on the known voxels."""
     *_, sub = data
     _, R, t, depth = views[0]
-    Rs = np.stack([R, R @ rot_z(0.7)[0], upright(2.0, 0.3)[0]])
+    Rs = np.stack([R, R @ z_angle_to_matrix(0.7), yaw_elevation_to_matrix(2.0, 0.3)])
     f, kn = depth_to_partial_many(depth, K, Rs, t)
     f, kn = f.reshape(3, -1), kn.reshape(3, -1)
     o, sse = beo._project(f, kn)
@@ -117,18 +118,18 @@ def test_1dof_recovers_a_planted_yaw(beo, data):
     n = beo.pose_bins_1dof
     rng = np.random.default_rng(5)
     for yaw in (0.9, 3.9):
-        R_up = upright(0.0, np.radians(35))[0]            # fixes the up axis, not the yaw
-        R = R_up @ rot_z(yaw)[0]
+        R_up = yaw_elevation_to_matrix(0.0, np.radians(35))   # fixes the up axis, not the yaw
+        R = R_up @ z_angle_to_matrix(yaw)
         t = np.array([0.02, -0.03, 1.7])
         depth = render_one(rec, R, t)
         out = beo.predict_view(depth, K, R_up, t, pose="1dof", label_true="chair", rng=rng)
         assert out["n_candidates"] == n
-        err = C.geodesic_deg(out["rotation"], R)
+        err = geodesic_deg(out["rotation"], R)
         assert err <= 360 / n, (yaw, err)
 
 
 def test_1dof_candidates_are_off_grid_and_reproducible(beo):
-    R = upright(0.3, 0.5)[0]
+    R = yaw_elevation_to_matrix(0.3, 0.5)
     c1 = beo.candidates(R, "1dof", np.random.default_rng(1))
     c2 = beo.candidates(R, "1dof", np.random.default_rng(1))
     assert c1.shape == (36, 3, 3) and np.array_equal(c1, c2)
@@ -138,7 +139,7 @@ def test_1dof_candidates_are_off_grid_and_reproducible(beo):
     g = beo.candidates(R, "3dof", np.random.default_rng(2))
     assert g.shape == (beo.so3_grid, 3, 3)
     assert np.allclose(np.einsum("nji,njk->nik", g, g), np.eye(3), atol=1e-9)
-    assert C.geodesic_deg(g, np.broadcast_to(R, g.shape)).min() > 0.01
+    assert geodesic_deg(g, np.broadcast_to(R, g.shape)).min() > 0.01
 
 
 def test_3dof_finds_an_easy_object_within_the_grid_spacing(data):
@@ -146,12 +147,12 @@ def test_3dof_finds_an_easy_object_within_the_grid_spacing(data):
     beo = BEO(sub, so3_grid=400).fit(G, L)
     spacing = grid_spacing(so3_grid(400), n_probe=2000)
     rec = next(r for r in test if r.cls == "bed")
-    R = upright(2.2, np.radians(30))[0]
+    R = yaw_elevation_to_matrix(2.2, np.radians(30))
     t = np.array([0.0, 0.02, 1.7])
     depth = render_one(rec, R, t)
     out = beo.predict_view(depth, K, np.eye(3), t, pose="3dof", label_true="bed", rng=np.random.default_rng(9))
     assert out["n_candidates"] == 400
-    err = C.geodesic_deg(out["rotation"], R)
+    err = geodesic_deg(out["rotation"], R)
     assert err <= spacing["nn_max"], (err, spacing)
 
 

@@ -4,7 +4,8 @@ from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from hbeo import conventions as C
-from hbeo.render.poses import ViewSampler, uniform_so3, upright
+from hbeo.render.poses import ViewSampler
+from hbeo.rotations import matrix_to_axis_angle, uniform_so3, yaw_elevation_to_matrix
 
 
 def test_kinect_intrinsics_scale_with_the_image():
@@ -35,17 +36,6 @@ def test_backproject_then_project_round_trip():
         C.backproject(np.zeros((10, 10)), K)
 
 
-def test_axis_angle_round_trip_and_geodesic():
-    R = uniform_so3(200, np.random.default_rng(1))
-    v = C.rotation_to_axis_angle(R)
-    assert v.shape == (200, 3) and np.linalg.norm(v, axis=1).max() <= np.pi + 1e-9
-    assert np.allclose(C.axis_angle_to_rotation(v), R, atol=1e-9)
-    assert np.allclose(C.geodesic_deg(R, R), 0, atol=1e-5)
-    Rz = Rotation.from_euler("z", 37, degrees=True).as_matrix()
-    assert C.geodesic_deg(np.eye(3), Rz) == pytest.approx(37)
-    assert C.geodesic_deg(R[0], R[0] @ Rz) == pytest.approx(37)
-
-
 def angle_cdf(theta):
     """CDF of the rotation angle of a Haar-uniform rotation: (theta - sin theta) / pi."""
     return (theta - np.sin(theta)) / np.pi
@@ -54,7 +44,7 @@ def angle_cdf(theta):
 def test_so3_sampler_is_uniform():
     R = uniform_so3(5000, np.random.default_rng(2))
     assert np.allclose(R @ np.swapaxes(R, 1, 2), np.eye(3), atol=1e-9) and np.allclose(np.linalg.det(R), 1)
-    theta = np.linalg.norm(C.rotation_to_axis_angle(R), axis=1)
+    theta = np.linalg.norm(matrix_to_axis_angle(R), axis=1)
     assert stats.kstest(theta, angle_cdf).pvalue > 0.01
     for axis in range(3):                          # every rotated axis is uniform on the sphere
         assert stats.kstest(R[:, 2, axis], stats.uniform(-1, 2).cdf).pvalue > 0.01
@@ -63,19 +53,19 @@ def test_so3_sampler_is_uniform():
 def test_the_uniformity_test_rejects_a_non_uniform_sampler():
     e = np.random.default_rng(3).uniform([0, 0, 0], [2 * np.pi, np.pi, 2 * np.pi], (5000, 3))
     R = Rotation.from_euler("zyz", e).as_matrix()  # uniform Euler angles are not uniform on SO(3)
-    theta = np.linalg.norm(C.rotation_to_axis_angle(R), axis=1)
+    theta = np.linalg.norm(matrix_to_axis_angle(R), axis=1)
     assert stats.kstest(theta, angle_cdf).pvalue < 1e-6
 
 
-def test_upright_views_have_no_roll_and_the_asked_elevation():
+def test_upright_rotations_have_no_roll_and_the_asked_elevation():
     rng = np.random.default_rng(4)
     yaw, elev = rng.uniform(0, 2 * np.pi, 100), rng.uniform(0.1, 1.0, 100)
-    R = upright(yaw, elev)
+    R = yaw_elevation_to_matrix(yaw, elev)
     up = R[:, :, 2]                               # object +z in camera coordinates
     assert np.allclose(up[:, 0], 0, atol=1e-12)    # no roll: up stays vertical in the image
     assert (up[:, 1] < 0).all()                   # and points to the top of the image (y is down)
     assert np.allclose(np.arcsin(-up[:, 2]), elev)  # camera looks down by the elevation
-    front = upright(np.zeros(1), np.zeros(1))[0]
+    front = yaw_elevation_to_matrix(0.0, 0.0)
     assert np.allclose(front @ [0, -1, 0], [0, 0, -1])   # at yaw 0 the object's front faces the camera
 
 

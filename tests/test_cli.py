@@ -32,8 +32,10 @@ def test_voxelize_writes_grids(tmp_path, sample_dir):
     out = run("voxelize", "--dataset", str(sample_dir), "--profile", "ci", "--out", str(tmp_path))
     assert out.returncode == 0, out.stderr
     from hbeo.data.gridset import GridSet
-    gs = GridSet.load(tmp_path / "grids_train.npz")
+    from hbeo.rundir import RunDir
+    gs = GridSet.load(RunDir(tmp_path).grids("train"))
     assert len(gs) == 5
+    assert RunDir(tmp_path).status()["grids_test"]
 
 
 def test_subspace_command_fits_and_reports(tmp_path):
@@ -41,9 +43,32 @@ def test_subspace_command_fits_and_reports(tmp_path):
     out = run("subspace", "--dataset", "procedural", "--profile", "ci", "--out", str(tmp_path))
     assert out.returncode == 0, out.stderr
     assert "shared dimension:" in out.stdout and "naive" in out.stdout
-    summary = json.loads((tmp_path / "subspace_summary.json").read_text())
+    from hbeo.rundir import RunDir
+    rd = RunDir(tmp_path)
+    summary = json.loads(rd.subspace_summary.read_text())
+    assert rd.table("subspace_completion_partial").is_file()
     assert summary["dim"] == sum(summary["n_components"].values()) + 10
     assert set(summary["errors"]) == {"full", "partial"}
     assert 0 < summary["errors"]["full"]["all"]["naive"] <= 1
     from hbeo.subspace.basis import ObjectSubspace
-    assert ObjectSubspace.load(tmp_path / "subspace.npz").dim_ == summary["dim"]
+    assert ObjectSubspace.load(rd.subspace).dim_ == summary["dim"]
+
+
+def test_report_writes_the_reproduction_from_a_run(tmp_path):
+    out = run("report", "--run", str(tmp_path), "--out", str(tmp_path / "R.md"))
+    assert out.returncode == 0, out.stderr
+    text = (tmp_path / "R.md").read_text()
+    assert text.startswith("# Reproduction") and "*(missing: 05_table1.md" in text
+
+
+def test_reproduce_refuses_a_gpu_profile_without_cuda(tmp_path):
+    import os
+    import torch
+    if torch.cuda.is_available():
+        import pytest
+        pytest.skip("a GPU is visible: the full profile would start")
+    env = {k: v for k, v in os.environ.items() if k != "HBEO_ALLOW_CPU"}
+    out = subprocess.run([sys.executable, "-m", "hbeo", "reproduce", "--profile", "full", "--out", str(tmp_path)],
+                         capture_output=True, text=True, env=env)
+    assert out.returncode == 2 and "needs a CUDA GPU" in out.stderr and "full profile" in out.stderr
+    assert not list(tmp_path.iterdir())                                        # failed before writing anything

@@ -2,7 +2,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hbeo.reproduction.evaluate import summarize, symmetric_pose_error
-from hbeo.render.poses import uniform_so3
+from hbeo.rotations import uniform_so3
 
 
 def test_symmetric_pose_error_forgives_only_the_class_turns():
@@ -32,3 +32,23 @@ def test_summary_keys_and_values():
     assert m["completion"]["iou"] == 1.0 and m["runtime_ms"]["mean_per_query"] == 3.0
     assert m["per_class"]["table"]["pose_median_deg"] == 180 and m["per_class"]["table"]["pose_median_sym_deg"] == 0
     assert m["confusion"] == [[0, 1], [0, 1]]
+
+
+def test_evaluation_reads_its_cache_only_for_the_same_request(tmp_path):
+    """A cached eval_<method>_<pose>.json answers the same request (model file, objects, seed) without
+    loading anything; another request (other objects) must evaluate again, here failing on the model."""
+    import json
+    import pytest
+    from hbeo.errors import DataError
+    from hbeo.reproduction import protocol
+    from hbeo.rundir import RunDir
+    from hbeo.storage import sha256_file
+    run = RunDir(tmp_path).create()
+    run.model.write_bytes(b"not a model")
+    request = {"method": "beo", "pose": "3dof", "dataset": "procedural", "per_class": 1, "views": 1, "seed": 0,
+               "model_sha256": sha256_file(run.model)[:16]}
+    run.evaluation("beo", "3dof").write_text(json.dumps({"accuracy": 0.5, "request": request}))
+    assert protocol.evaluation(run, "procedural", "ci", "beo", "3dof")["accuracy"] == 0.5   # ci: 1 per class
+    assert protocol.evaluation(str(tmp_path), "procedural", "ci", "beo", "3dof")["accuracy"] == 0.5
+    with pytest.raises(DataError):
+        protocol.evaluation(run, "procedural", "ci", "beo", "3dof", per_class=2)

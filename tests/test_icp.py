@@ -11,6 +11,7 @@ from hbeo.render import renderer as render
 from hbeo.errors import DataError
 from hbeo.reproduction.evaluate import symmetric_pose_error
 from hbeo.baselines.icp import ICPBaseline
+from hbeo.rotations import geodesic_deg, super_fibonacci, uniform_so3, yaw_elevation_to_matrix
 
 K = C.Intrinsics.kinect(160, 120)
 YAWS = np.radians([20.0, 140.0, 260.0])
@@ -29,7 +30,7 @@ def data():
 def views(data):
     """Upright views (elevation 25 deg, three yaws) of a training chair and bed and of the three
     test chairs, plus one random (SO(3)) view of two test objects of every class."""
-    Rs = poses.upright(YAWS, np.full(len(YAWS), np.radians(25.0)))
+    Rs = yaw_elevation_to_matrix(YAWS, np.full(len(YAWS), np.radians(25.0)))
     ts = np.tile([0.02, -0.03, 1.7], (len(YAWS), 1))
     first = {r.cls: r for r in reversed(data["train"])}
     out = {"R": Rs, "t": ts}
@@ -66,7 +67,7 @@ def test_recovers_planted_yaw_with_own_grid(views, cls, pose):
     icp = ICPBaseline().fit(gridset.record_grid(rec)[None], [0], [cls])
     for d, R, t in zip(depths, views["R"], views["t"]):
         out = icp.predict_view(d, K, R, t, pose=pose, label_true=cls)
-        err = C.geodesic_deg(out["rotation"], R)
+        err = geodesic_deg(out["rotation"], R)
         assert err < 15, f"{rec.id} {pose}: pose error {err:.1f} deg"
         assert np.linalg.norm(out["translation"] - t) < 0.1
         assert np.allclose(out["rotation"].T @ out["rotation"], np.eye(3), atol=1e-9)
@@ -81,7 +82,7 @@ def test_point_to_point_metric(views, pose):
     icp = ICPBaseline(metric="point").fit(gridset.record_grid(rec)[None], [0], ["chair"])
     R, t = views["R"][0], views["t"][0]
     out = icp.predict_view(depths[0], K, R, t, pose=pose, label_true="chair")
-    assert C.geodesic_deg(out["rotation"], R) < 15
+    assert geodesic_deg(out["rotation"], R) < 15
     if pose == "1dof":
         assert np.allclose(out["rotation"][:, 2], R[:, 2], atol=1e-9)
 
@@ -105,8 +106,8 @@ def test_beats_chance_on_random_views(views, class_means):
     chance's 126.5 degrees."""
     e3, e1 = [], []
     for rec, R, t, d in views["random"]:
-        e3.append(C.geodesic_deg(class_means.predict_view(d, K, R, t, label_true=rec.cls)["rotation"], R))
-        e1.append(C.geodesic_deg(class_means.predict_view(d, K, R, t, pose="1dof", label_true=rec.cls)["rotation"], R))
+        e3.append(geodesic_deg(class_means.predict_view(d, K, R, t, label_true=rec.cls)["rotation"], R))
+        e1.append(geodesic_deg(class_means.predict_view(d, K, R, t, pose="1dof", label_true=rec.cls)["rotation"], R))
     e3, e1 = np.array(e3), np.array(e1)
     msg = f"3dof {np.round(e3)}, 1dof {np.round(e1)}"
     assert np.mean(e3 < 30) >= 0.2, msg
@@ -147,14 +148,14 @@ def test_outputs_and_fit(data, views, class_means):
 
 
 def test_super_fibonacci_rotations_cover_so3():
-    R = poses.super_fibonacci(48)
+    R = super_fibonacci(48)
     assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=1e-9)
     assert np.allclose(np.linalg.det(R), 1.0)
-    probe = poses.uniform_so3(500, np.random.default_rng(0))
-    gap = C.geodesic_deg(probe[:, None], R[None]).min(axis=1)
+    probe = uniform_so3(500, np.random.default_rng(0))
+    gap = geodesic_deg(probe[:, None], R[None]).min(axis=1)
     # near-uniform: 48 rotations leave no hole wider than ~66 degrees (an optimal set ~50)
     assert gap.max() < 70 and np.median(gap) < 40
-    assert np.allclose(poses.super_fibonacci(48), R)
+    assert np.allclose(super_fibonacci(48), R)
 
 
 # ----------------------------------------------------------------------------- persistence

@@ -70,3 +70,46 @@ def test_obj_ply_stl_via_trimesh(tmp_path):
         box.export(p)
         m = read_mesh(p)
         assert np.allclose(m.extents, (1, 2, 3))
+
+
+def _trimesh_off(text):
+    import io
+
+    import trimesh
+    return trimesh.load(io.BytesIO(text.encode()), file_type="off", process=False, force="mesh")
+
+
+def test_why_off_keeps_its_own_parser():
+    """trimesh's OFF loader reads ModelNet's one-line header, but misreads other valid or broken
+    OFF files (see hbeo.data.meshio). If this test starts failing, trimesh got better: re-check
+    whether parse_off can go."""
+    # ModelNet's broken header "OFF4 2 0": trimesh is right, so this is NOT why parse_off stays
+    text = "OFF4 2 0\n" + SQUARE + "3 0 1 2\n3 0 2 3\n"
+    v, f = parse_off(text)
+    m = _trimesh_off(text)
+    assert np.array_equal(m.vertices, v) and np.array_equal(m.faces, f)
+
+    # a comment after the counts line: trimesh silently returns wrong vertices and drops the face
+    text = "OFF\n4 1 0\n0 0 0\n# made by hand\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n"
+    v, f = parse_off(text)
+    assert v.tolist() == [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]] and f.tolist() == [[0, 1, 2]]
+    m = _trimesh_off(text)
+    assert m.vertices.tolist() != v.tolist() and len(m.faces) == 0
+
+    # a truncated file (the header promises 2 faces, there is 1): trimesh silently loses the face
+    text = "OFF\n4 2 0\n" + SQUARE + "3 0 1 2\n"
+    assert len(_trimesh_off(text).faces) == 1
+    with pytest.raises(DataError, match="truncated OFF"):
+        parse_off(text, "cut.off")
+
+    # a NaN coordinate: trimesh accepts it
+    text = "OFF\n4 1 0\n0 0 nan\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n"
+    assert np.isnan(_trimesh_off(text).vertices).any()
+    with pytest.raises(DataError, match="NaN"):
+        parse_off(text)
+
+    # a pentagon next to a triangle with a face colour: trimesh fails, parse_off fans it
+    text = "OFF\n5 2 0\n" + SQUARE + "0.5 1.5 0\n3 0 1 2 255 0 0\n5 0 1 4 2 3\n"
+    with pytest.raises(Exception):
+        _trimesh_off(text)
+    assert parse_off(text)[1].tolist() == [[0, 1, 2], [0, 1, 4], [0, 4, 2], [0, 2, 3]]

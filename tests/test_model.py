@@ -1,3 +1,6 @@
+import json
+import zipfile
+
 import numpy as np
 import pytest
 import torch
@@ -58,7 +61,8 @@ def test_bad_model_files(tmp_path):
     (tmp_path / "junk.hbeo").write_bytes(b"junk")
     with pytest.raises(DataError, match=r"junk\.hbeo: not a readable hbeo model file"):
         HBEO.load(tmp_path / "junk.hbeo")
-    torch.save({"format_version": 99}, tmp_path / "new.hbeo")
+    with zipfile.ZipFile(tmp_path / "new.hbeo", "w") as z:       # a later format (hbeo.model.modelfile)
+        z.writestr("meta.json", json.dumps({"format": "hbeo-model", "format_version": 99}))
     with pytest.raises(DataError, match="model format 99"):
         HBEO.load(tmp_path / "new.hbeo")
 
@@ -114,7 +118,7 @@ class _RollReader(torch.nn.Module):
         self.net, self.R0 = net, torch.tensor(R0)
 
     def forward(self, x):
-        from hbeo.model.augment import roll_matrix
+        from hbeo.rotations import z_angle_to_matrix
         from hbeo.model.network import bin_targets
         d = x.float()[:, 0]
         H, W = d.shape[1:]
@@ -125,7 +129,7 @@ class _RollReader(torch.nn.Module):
             cu, cv = (m * u).sum() / m.sum(), (m * v).sum() / m.sum()
             tu, tv = (tip * u).sum() / tip.sum(), (tip * v).sum() / tip.sum()
             a = float(torch.atan2(tv - cv, tu - cu))
-            Rs.append(torch.tensor(roll_matrix(a), dtype=torch.float32) @ self.R0)
+            Rs.append(torch.tensor(z_angle_to_matrix(a), dtype=torch.float32) @ self.R0)
         pose = torch.log(bin_targets(torch.stack(Rs).float(), self.net.bin_rotations, 10.0) + 1e-30)
         B = len(d)
         return {"logits": torch.zeros(B, self.net.cfg.n_classes), "pose": pose,
@@ -139,19 +143,17 @@ def _bins_model(model, n=2048):
 
 
 def test_roll_permutation_finds_the_turned_bin(model):
-    from hbeo.model.augment import roll_matrix
-    from hbeo.conventions import geodesic_deg
+    from hbeo.rotations import geodesic_deg, z_angle_to_matrix
     m = _bins_model(model)
     G = m.net.bin_rotations.double().numpy()
     for a in (0.7, 2.0 * np.pi / 3):
-        turned = roll_matrix(a) @ G
+        turned = z_angle_to_matrix(a) @ G
         assert geodesic_deg(G[m._roll_permutation(a).numpy()], turned).max() < 15      # grid spacing ~17 deg
         assert np.median(geodesic_deg(G[m._roll_permutation(-a).numpy()], turned)) > 60   # the other way round
 
 
 def test_roll_averaging_turns_each_rolls_distribution_back(model):
-    from hbeo.conventions import geodesic_deg
-    from hbeo.render.poses import uniform_so3
+    from hbeo.rotations import geodesic_deg, uniform_so3
     m = _bins_model(model)
     R0 = uniform_so3(1, np.random.default_rng(7))[0].astype(np.float32)
     m._net = _RollReader(m.net, R0)

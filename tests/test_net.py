@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 import torch
 
-from hbeo import conventions as C
-from hbeo.model.network import (HBEONet, LossWeights, NetConfig, axis_angle_to_matrix, hbeo_loss, matrix_to_sixd,
-                      bin_cosines, bin_targets, normalize_depth, pose_to_matrix, sixd_to_matrix)
-from hbeo.render.poses import uniform_so3
+from hbeo.model.network import (HBEONet, LossWeights, NetConfig, hbeo_loss,
+                      bin_cosines, bin_targets, normalize_depth, pose_to_matrix)
+from hbeo.rotations import (axis_angle_to_matrix, geodesic_deg, matrix_to_axis_angle, matrix_to_sixd,
+                            sixd_to_matrix, uniform_so3)
 
 
 def test_paper_sized_network_has_about_15m_parameters_and_right_heads():
@@ -18,9 +18,9 @@ def test_paper_sized_network_has_about_15m_parameters_and_right_heads():
     assert not any(isinstance(m, (torch.nn.MaxPool2d, torch.nn.AvgPool2d)) for m in net.modules())
 
 
-def test_rotation_conversions_agree_with_the_conventions_module():
+def test_rotation_conversions_used_by_the_pose_heads():
     R = uniform_so3(50, np.random.default_rng(0))
-    v = torch.tensor(C.rotation_to_axis_angle(R))
+    v = torch.tensor(matrix_to_axis_angle(R))
     assert torch.allclose(axis_angle_to_matrix(v), torch.tensor(R), atol=1e-9)
     Rt = torch.tensor(R)
     assert torch.allclose(sixd_to_matrix(matrix_to_sixd(Rt)), Rt, atol=1e-9)
@@ -34,7 +34,7 @@ def test_loss_is_zero_at_the_truth_and_weights_apply():
     cfg = NetConfig(image_size=(32, 24), n_classes=3, n_coeffs=4, conv_channels=(4, 4, 4, 4), fc=(8, 8, 8))
     R = torch.tensor(uniform_so3(2, np.random.default_rng(1)), dtype=torch.float32)
     batch = {"label": torch.tensor([0, 2]), "rotation": R,
-             "axis_angle": torch.tensor(C.rotation_to_axis_angle(R.numpy()), dtype=torch.float32),
+             "axis_angle": torch.tensor(matrix_to_axis_angle(R.numpy()), dtype=torch.float32),
              "coeffs": torch.randn(2, 4)}
     perfect = {"logits": torch.tensor([[50.0, 0, 0], [0, 0, 50.0]]), "pose": batch["axis_angle"],
                "coeffs": batch["coeffs"]}
@@ -79,7 +79,7 @@ def test_bins_decode_a_peaked_distribution_to_its_rotation_off_the_grid():
     # the nearest grid rotation alone gets (the refinement works between bins)
     logits = _log_target(R, grid)
     M = net.pose_matrix(logits)
-    err = C.geodesic_deg(M.numpy(), R.numpy())
+    err = geodesic_deg(M.numpy(), R.numpy())
     nearest = np.degrees(np.arccos(bin_cosines(R, grid).max(1).values.numpy()))
     assert err.max() < 3.0 and err.mean() < nearest.mean() / 3
     assert torch.allclose(M @ M.transpose(1, 2), torch.eye(3, dtype=M.dtype).expand(20, 3, 3), atol=1e-9)
@@ -93,7 +93,7 @@ def test_bins_keep_the_stronger_of_two_modes():
     flip = torch.tensor([[-1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]], dtype=R.dtype)   # 180 deg about z
     t = 0.6 * bin_targets(R, grid, 10.0) + 0.4 * bin_targets(R @ flip, grid, 10.0)
     M = net.pose_matrix(torch.log(t))
-    assert C.geodesic_deg(M.numpy(), R.numpy())[0] < 6.0   # a regression would land ~90 deg from both
+    assert geodesic_deg(M.numpy(), R.numpy())[0] < 6.0   # a regression would land ~90 deg from both
 
 
 def test_bins_loss_is_lowest_at_the_truth_and_needs_the_grid():

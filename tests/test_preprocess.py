@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from hbeo.conventions import Intrinsics
-from hbeo.model.preprocess import look_at, to_model_view
+from hbeo.model.preprocess import to_model_view
+from hbeo.rotations import direction_to_matrix
 
 
 def sphere_depth(K, center, r):
@@ -16,14 +17,14 @@ def sphere_depth(K, center, r):
     return np.where(disc > 0, t * d[..., 2], 0.0)
 
 
-def test_look_at_is_the_smallest_rotation_to_the_target():
+def test_direction_to_matrix_is_the_smallest_rotation_to_the_target():
     c = np.array([0.3, -0.2, 2.0])
-    Q = look_at(c)
+    Q = direction_to_matrix(c)
     assert np.allclose(Q.T @ Q, np.eye(3)) and np.isclose(np.linalg.det(Q), 1)
     assert np.allclose(Q[:, 2], c / np.linalg.norm(c))
     angle = np.degrees(np.arccos((np.trace(Q) - 1) / 2))
     assert angle == pytest.approx(np.degrees(np.arccos(c[2] / np.linalg.norm(c))))
-    assert np.allclose(look_at(np.array([0, 0, 5.0])), np.eye(3))
+    assert np.allclose(direction_to_matrix(np.array([0, 0, 5.0])), np.eye(3))
 
 
 def test_same_camera_centred_object_is_unchanged():

@@ -15,7 +15,8 @@ from hbeo.render import renderer as render
 from hbeo.errors import DataError
 from hbeo.data.meshio import read_mesh
 from hbeo.render.poses import ViewSampler
-from hbeo.render.renderer import Renderer, SensorNoise, grid_mesh, prepare_mesh, record_mesh
+from hbeo.render.noise import SensorNoise
+from hbeo.render.renderer import Renderer, grid_mesh, prepare_mesh, record_mesh
 
 BACKENDS = [pytest.param("embree", marks=pytest.mark.skipif(not render.embree_available(),
                                                              reason="embreex not installed")),
@@ -199,6 +200,13 @@ def test_osmesa_platform_agrees_with_embree():
     assert res.returncode == 0, res.stderr[-2000:]
     plat, mismatch, n, rel = res.stdout.split()
     assert plat == "osmesa" and int(n) > 300 and int(mismatch) <= 2 and float(rel) < 1e-4
+
+
+def test_egl_probe_says_no_for_a_device_that_is_not_there(monkeypatch):
+    """The probe runs pyrender's own EGL set-up in a child process: a missing device is a 'no'
+    (and gl_platform then picks OSMesa), not a crash of this process."""
+    monkeypatch.setenv("EGL_DEVICE_ID", "999")
+    assert render._egl_works() is False
 
 
 # ------------------------------------------------------------------ meshes and grids

@@ -19,9 +19,11 @@ from hbeo.data import datasets
 from hbeo.data.datasets import ObjectRecord
 from hbeo.errors import DataError
 from hbeo.data.gridset import build_gridset, record_grid
-from hbeo.render.renderset import (DepthShards, Manifest, RenderSettings, ShardSampler, StreamingDepth,
-                            load_shard, render_set, split_by_object)
+from hbeo.render.datasets import DepthShards, ShardSampler, StreamingDepth, load_shard, split_by_object
+from hbeo.render.renderset import Manifest, render_set
+from hbeo.render.views import RenderSettings
 from hbeo.subspace.basis import ObjectSubspace
+from hbeo.rotations import axis_angle_to_matrix
 
 CLASSES = ("bed", "chair", "table")
 SMALL = RenderSettings(image_size=(32, 24), views_per_object=2)
@@ -83,7 +85,7 @@ def test_set_has_the_right_arrays_labels_and_manifest(rendered, ds, subspace):
     assert a["rotation"].dtype == np.float32 and a["axis_angle"].dtype == np.float32
     assert np.allclose(np.einsum("nji,njk->nik", R, R), np.eye(3), atol=1e-5)
     assert np.allclose(np.linalg.det(R), 1.0, atol=1e-5)
-    assert np.allclose(C.axis_angle_to_rotation(a["axis_angle"]), R, atol=1e-5)
+    assert np.allclose(axis_angle_to_matrix(a["axis_angle"]), R, atol=1e-5)
     assert a["translation"].shape == (12, 3) and (a["translation"][:, 2] >= 1.4).all()
     assert np.allclose(parts[0]["intrinsics"], C.Intrinsics.kinect(32, 24).as_tuple())
     assert len({a["rotation"][i].tobytes() for i in range(12)}) == 12   # views differ

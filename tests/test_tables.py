@@ -3,11 +3,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hbeo.reproduction import report as reproduce
+from hbeo.reproduction import protocol
 from hbeo.reproduction import tables
 from hbeo.conventions import CLASSES
 from hbeo.reproduction.evaluate import summarize
-from hbeo.render.poses import uniform_so3
+from hbeo.rotations import uniform_so3
 
 
 def fake_metrics(method, pose, accuracy, pose_err_deg, iou_shift=0, given=False, n=40, seed=0):
@@ -38,7 +38,7 @@ def evals():
 
 
 def test_table1_has_reproduced_and_reported_rows_and_skips_given_class(evals):
-    t = tables.table1(evals, reproduce.paper_table("table1_classification"))
+    t = tables.table1(evals, tables.paper_table("table1_classification"))
     rep = t[t.source == "reproduced"]
     assert set(rep.method) == {"HBEO (3-DOF)", "BEO (known pose)", "BEO (1-DOF)",
                                "3-D CNN on partial grid (known pose)"}      # given-class settings left out
@@ -59,7 +59,7 @@ def test_pose_completion_runtime_tables(evals):
     cs = tables.completion_summary(evals).set_index("method")
     assert cs.loc["HBEO (3-DOF)", "IoU"] == 1.0 and cs.loc["BEO (known pose)", "IoU"] < 1.0
     assert "class mean shape (HBEO's class)" in cs.index
-    t2 = tables.table2(evals, reproduce.paper_table("table2_runtime")).set_index("method")
+    t2 = tables.table2(evals, tables.paper_table("table2_runtime")).set_index("method")
     assert t2.loc["HBEO (3-DOF)", "reproduced (s)"] == pytest.approx(0.005)
     assert t2.loc["HBEO (3-DOF)", "paper (s)"] == pytest.approx(0.01)
     assert t2.loc["BEO (1-DOF)", "paper (s)"] == pytest.approx(672.97)
@@ -80,3 +80,37 @@ def test_claims_are_decided_by_the_numbers(evals):
 def test_markdown_formats_missing_values():
     md = tables.to_markdown(pd.DataFrame({"a": ["x", "y"], "b": [1.25, np.nan]}))
     assert md.splitlines()[2] == "| x | 1.2 |" and md.splitlines()[3] == "| y | – |"
+
+
+def test_eval_per_class_follows_the_profile():
+    from hbeo import config
+    assert protocol.eval_per_class("ci", "hbeo", "3dof") == 3                 # the profile's test split
+    assert protocol.eval_per_class("ci", "beo", "3dof") == 1                  # BEO's search sees fewer
+    assert protocol.eval_per_class("ci", "beo", "1dof") == 3
+    assert protocol.eval_per_class("cpu", "beo", "1dof") == 10
+    assert protocol.eval_per_class("full", "beo", "3dof") == 5
+    assert protocol.eval_per_class("full", "hbeo", "3dof") is None            # all there is
+    more = config.get_profile("ci", beo_3dof_test_per_class=50)
+    assert protocol.eval_per_class(more, "beo", "3dof") == 3                  # never more than the split
+
+
+def test_worse_than_chance_names_the_evaluations(evals):
+    assert tables.worse_than_chance(evals) == []
+    bad = fake_metrics("beo", "1dof", 0.1, 30)                                # 4 of 40 right, 10 classes
+    assert tables.worse_than_chance([*evals, bad]) == ["BEO (1-DOF)"]
+
+
+def test_tables_written_into_the_run_feed_the_report(evals, tmp_path):
+    from hbeo.reproduction.report import write_reproduction
+    from hbeo.rundir import RunDir
+    run = RunDir(tmp_path / "run").create()
+    t1 = tables.table1(evals, tables.paper_table("table1_classification"))
+    assert tables.save_csv(t1, run, "05_table1") == run.table("05_table1")
+    assert pd.read_csv(run.table("05_table1")).shape == t1.shape
+    tables.save_markdown(t1, run, "05_table1", note="\n\nnote\n")
+    assert run.table("05_table1", "md").read_text() == tables.to_markdown(t1) + "\n\nnote\n"
+    assert not list(run.path.glob(".*.tmp"))                                 # written through temporary names
+    out = write_reproduction(run, tmp_path / "paper" / "REPRODUCTION.md")
+    text = out.read_text()
+    assert tables.to_markdown(t1) in text
+    assert "*(missing: 06_pose.md" in text and "](../run/06_pose_error.png)" in text

@@ -1,11 +1,16 @@
+"""The training loop (hbeo.model.train) with HBEONet's task: learning, exact resume, max_steps,
+refusing a checkpoint made with other settings, checkpoints that load with weights_only."""
 import numpy as np
 import pandas as pd
+import pytest
 import torch
 
-from hbeo import conventions as C
+from hbeo.errors import DataError
+from hbeo.model.fit import HBEONetTask
 from hbeo.model.network import LossWeights, NetConfig
-from hbeo.render.poses import uniform_so3
-from hbeo.model.train import CHECKPOINT, LOG, TrainConfig, train
+from hbeo.model.train import TrainConfig, load_checkpoint, lr_at, train
+from hbeo.rotations import matrix_to_axis_angle, uniform_so3
+from hbeo.rundir import CHECKPOINT, TRAIN_LOG as LOG
 
 CFG = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=4, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16))
 
@@ -29,7 +34,7 @@ class Toy(torch.utils.data.Dataset):
     def __getitem__(self, i):
         return {"depth": torch.from_numpy(self.depth[i]), "label": int(self.labels[i]),
                 "rotation": torch.from_numpy(self.R[i]),
-                "axis_angle": torch.tensor(C.rotation_to_axis_angle(self.R[i]), dtype=torch.float32),
+                "axis_angle": torch.tensor(matrix_to_axis_angle(self.R[i]), dtype=torch.float32),
                 "coeffs": torch.from_numpy(self.coeffs[i])}
 
 
@@ -39,33 +44,78 @@ def weights(net):
 
 def test_learns_and_resumes_exactly(tmp_path):
     tr, va = Toy(96, 0), Toy(48, 1)
-    tc = TrainConfig(epochs=4, batch_size=16, lr=1e-2, warmup_steps=2, progress=False,
-                     loss=LossWeights(pose=0.1, coeffs=0.1))     # pose and coeffs are noise here
-    full = train(CFG, tr, va, tmp_path / "a", tc)
+    tc = TrainConfig(epochs=4, batch_size=16, lr=1e-2, warmup_steps=2, progress=False)
+    task = HBEONetTask(CFG, LossWeights(pose=0.1, coeffs=0.1))     # pose and coeffs are noise here
+    full = train(task, tr, va, tmp_path / "a", tc)
     log = pd.read_csv(tmp_path / "a" / LOG)
     assert list(log.epoch) == [1, 2, 3, 4] and log.val_accuracy.iloc[-1] > 0.8     # chance is 1/3
-    train(CFG, tr, va, tmp_path / "b", tc, stop_after_epoch=1)                   # "interrupted"
+    train(task, tr, va, tmp_path / "b", tc, stop_after_epoch=1)                   # "interrupted"
     assert list(pd.read_csv(tmp_path / "b" / LOG).epoch) == [1]
-    resumed = train(CFG, tr, va, tmp_path / "b", tc)
+    resumed = train(task, tr, va, tmp_path / "b", tc)
     assert torch.equal(weights(full), weights(resumed))
     assert pd.read_csv(tmp_path / "b" / LOG).drop(columns="images_per_s").equals(log.drop(columns="images_per_s"))
     assert (tmp_path / "b" / CHECKPOINT).exists()
 
 
-def test_resume_refuses_another_network(tmp_path):
-    import pytest
+def test_resume_refuses_other_settings(tmp_path):
     tc = TrainConfig(epochs=1, batch_size=16, progress=False)
-    train(CFG, Toy(16, 0), Toy(8, 1), tmp_path, tc)
+    train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), tmp_path, tc)
     other = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=5, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16))
-    with pytest.raises(ValueError, match="another network configuration"):
-        train(other, Toy(16, 0), Toy(8, 1), tmp_path, tc)
-    # the same network with other loss weights or other data would silently mix two runs
-    with pytest.raises(ValueError, match="trained with loss"):
-        train(CFG, Toy(16, 0), Toy(8, 1), tmp_path, TrainConfig(epochs=1, batch_size=16, progress=False,
-                                                               loss=LossWeights(pose=5.0)))
-    with pytest.raises(ValueError, match="trained with data"):
-        train(CFG, Toy(16, 0), Toy(8, 1), tmp_path, TrainConfig(epochs=1, batch_size=16, progress=False,
-                                                               data={"augment_roll": True}))
+    ck = str(tmp_path / CHECKPOINT)
+    with pytest.raises(DataError, match=rf"{ck}: .*other settings \(model\.net\.n_coeffs 4 there, 5 now\)"):
+        train(HBEONetTask(other), Toy(16, 0), Toy(8, 1), tmp_path, tc)
+    # the same network with other loss weights, data or schedule would silently mix two runs
+    with pytest.raises(DataError, match=r"model\.loss\.pose 1\.0 there, 5\.0 now"):
+        train(HBEONetTask(CFG, LossWeights(pose=5.0)), Toy(16, 0), Toy(8, 1), tmp_path, tc)
+    with pytest.raises(DataError, match=r"train\.data\.augment_roll None there, True now"):
+        train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), tmp_path,
+              TrainConfig(epochs=1, batch_size=16, progress=False, data={"augment_roll": True}))
+    with pytest.raises(DataError, match=r"train\.epochs 1 there, 2 now"):
+        train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), tmp_path, TrainConfig(epochs=2, batch_size=16, progress=False))
+    # another kind of model
+    task = HBEONetTask(CFG)
+    task.kind = "voxcnn"
+    with pytest.raises(DataError, match="checkpoint is for a hbeonet model, not voxcnn"):
+        train(task, Toy(16, 0), Toy(8, 1), tmp_path, tc)
+    # the machine's settings may change: the finished run is read back, nothing is trained
+    same = train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), tmp_path,
+                 TrainConfig(epochs=1, batch_size=16, progress=False, threads=1, device="cpu"))
+    assert torch.equal(weights(same), weights(train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), tmp_path, tc)))
+
+
+def test_checkpoints_hold_only_tensors_and_plain_values(tmp_path):
+    train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), tmp_path, TrainConfig(epochs=1, batch_size=16, progress=False))
+    ck = torch.load(tmp_path / CHECKPOINT, map_location="cpu", weights_only=True)
+    assert ck["kind"] == "hbeonet" and ck["settings"]["model"]["net"]["n_coeffs"] == 4
+    assert isinstance(ck["rng"]["numpy"]["keys"], list) and torch.is_tensor(ck["rng"]["torch"])
+    assert ck["history"][0]["epoch"] == 1 and isinstance(ck["history"][0]["val_loss"], float)
+    # anything that weights_only refuses, and files that are not checkpoints: DataError naming the file
+    bad = tmp_path / "pickled" / CHECKPOINT
+    bad.parent.mkdir()
+    torch.save({**ck, "extra": np.arange(3)}, bad)     # a numpy array needs unpickling
+    with pytest.raises(DataError, match=f"{bad}: not a readable checkpoint"):
+        load_checkpoint(bad)
+    with pytest.raises(DataError, match=f"{bad}: not a readable checkpoint"):
+        train(HBEONetTask(CFG), Toy(16, 0), Toy(8, 1), bad.parent, TrainConfig(epochs=1, batch_size=16, progress=False))
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(DataError, match=f"{junk}: not a readable checkpoint"):
+        load_checkpoint(junk)
+    torch.save({"format_version": 99}, junk)
+    with pytest.raises(DataError, match=f"{junk}: checkpoint format 99"):
+        load_checkpoint(junk)
+
+
+def test_max_steps_stops_inside_an_epoch_with_a_full_schedule(tmp_path):
+    tr, va = Toy(96, 0), Toy(16, 1)                  # 6 steps per epoch
+    tc = TrainConfig(epochs=3, batch_size=16, lr=1e-2, warmup_steps=2, max_steps=8, progress=False)
+    net = train(HBEONetTask(CFG), tr, va, tmp_path, tc)
+    log = pd.read_csv(tmp_path / LOG)
+    assert list(log.epoch) == [1, 2] and list(log.step) == [6, 8]
+    assert log.lr.iloc[-1] == pytest.approx(tc.lr * tc.min_lr_ratio)        # the schedule ends at max_steps
+    assert lr_at(7, 8, tc) < lr_at(6, 8, tc)
+    again = train(HBEONetTask(CFG), tr, va, tmp_path, tc)                  # done: nothing more to train
+    assert torch.equal(weights(net), weights(again)) and len(pd.read_csv(tmp_path / LOG)) == 2
 
 
 class ToyPose(Toy):
@@ -81,9 +131,10 @@ def test_rotation_bins_head_learns_a_pose_and_resumes_exactly(tmp_path):
     cfg = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=4, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16),
                     rotation="bins", rotation_bins=512)
     tr, va = ToyPose(96, 0), ToyPose(48, 1)
-    tc = TrainConfig(epochs=4, batch_size=16, lr=1e-2, warmup_steps=2, progress=False, loss=LossWeights(coeffs=0.1))
-    full = train(cfg, tr, va, tmp_path / "a", tc)
+    tc = TrainConfig(epochs=4, batch_size=16, lr=1e-2, warmup_steps=2, progress=False)
+    task = HBEONetTask(cfg, LossWeights(coeffs=0.1))
+    full = train(task, tr, va, tmp_path / "a", tc)
     log = pd.read_csv(tmp_path / "a" / LOG)
     assert log.val_pose_median_deg.iloc[-1] < 20 < log.val_pose_median_deg.iloc[0]   # chance ~126 degrees
-    train(cfg, tr, va, tmp_path / "b", tc, stop_after_epoch=2)
-    assert torch.equal(weights(full), weights(train(cfg, tr, va, tmp_path / "b", tc)))
+    train(task, tr, va, tmp_path / "b", tc, stop_after_epoch=2)
+    assert torch.equal(weights(full), weights(train(task, tr, va, tmp_path / "b", tc)))

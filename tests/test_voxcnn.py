@@ -5,14 +5,17 @@ import pandas as pd
 import pytest
 import torch
 
+from hbeo import config
 from hbeo.baselines import voxcnn as V
 from hbeo.errors import DataError
+from hbeo.model.train import TrainConfig, train
+from hbeo.rundir import CHECKPOINT, RunDir
 from hbeo.data.gridset import GridSet
 from hbeo.subspace.metrics import iou
 from hbeo.subspace.partial import depth_to_partial
-from hbeo.render.renderset import load_shard
+from hbeo.render.datasets import load_shard
 
-TEST_EPOCHS = V.PROFILES["ci"]["epochs"]      #: the ci profile as is (3 epochs, seconds each)
+TEST_EPOCHS = config.get_profile("ci").voxcnn_epochs      #: the ci profile as is (3 epochs, seconds each)
 
 
 # ------------------------------------------------------------------ fixtures (one ci run per session)
@@ -88,8 +91,8 @@ def test_network_shapes_and_config():
     with pytest.raises(ValueError):
         V.VoxCNNConfig(channels=(4, 8))
     # every profile builds and is small enough for a CPU
-    for name, sizes in V.PROFILES.items():
-        n = V.VoxCNN(V.VoxCNNConfig(channels=sizes["channels"], bottleneck=sizes["bottleneck"])).n_params()
+    for name, prof in config.PROFILES.items():
+        n = V.VoxCNN(V.VoxCNNConfig(channels=prof.voxcnn_channels, bottleneck=prof.voxcnn_bottleneck)).n_params()
         assert n < 20_000_000, name
 
 
@@ -157,9 +160,10 @@ def test_trained_baseline_beats_chance_and_empty_completion(ci_run, trained, tes
     assert completion.mean() > 0.2                    # an empty prediction scores 0
     assert completion.mean() > visible.mean()         # completes more than what the camera saw
     # training wrote the model file, the checkpoint and the log
-    assert (ci_run / "voxcnn.pt").is_file()
-    log = pd.read_csv(ci_run / "train_voxcnn" / V.LOG)
-    assert list(log.epoch) == list(range(1, TEST_EPOCHS + 1)) and "val_iou" in log
+    run = RunDir(ci_run)
+    assert run.baseline("voxcnn").is_file() and run.training(run.baseline("voxcnn")).name == "train_voxcnn"
+    log = pd.read_csv(run.train_log(run.baseline("voxcnn")))
+    assert list(log.epoch) == list(range(1, TEST_EPOCHS + 1)) and "val_iou" in log and "grids_per_s" in log
 
 
 def test_predict_view(trained, test_views):
@@ -183,48 +187,51 @@ def test_rerun_after_training_resumes_from_checkpoint(ci_run, trained):
     again = V.train_voxcnn(ci_run, "ci", epochs=TEST_EPOCHS, progress=False)
     a, b = trained.net.state_dict(), again.net.state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
-    with pytest.raises(ValueError, match="epochs"):
+    with pytest.raises(DataError, match=f"train_voxcnn/{CHECKPOINT}: .*train.epochs {TEST_EPOCHS} there"):
         V.train_voxcnn(ci_run, "ci", epochs=TEST_EPOCHS + 1, progress=False)
 
 
 def test_interrupted_training_resumes_exactly(tmp_path, pset):
+    from torch.utils.data import Subset
+    from hbeo.rundir import TRAIN_LOG
     idx = np.arange(len(pset))
-    tr, va = idx[idx % 8 < 2][:40], idx[idx % 8 == 7][:8]        # a small slice: this tests the loop
-    cfg = V.VoxCNNConfig(channels=(4, 4, 8), bottleneck=16)
-    tc = V.VoxTrainConfig(epochs=2, batch_size=16, lr=3e-3, warmup_steps=2, progress=False)
-    full = V.train_loop(cfg, pset, tr, va, tmp_path / "a", tc)
-    V.train_loop(cfg, pset, tr, va, tmp_path / "b", tc, stop_after_epoch=1)            # "interrupted"
-    assert list(pd.read_csv(tmp_path / "b" / V.LOG).epoch) == [1]
-    resumed = V.train_loop(cfg, pset, tr, va, tmp_path / "b", tc)
+    tr, va = Subset(pset, idx[idx % 8 < 2][:40]), Subset(pset, idx[idx % 8 == 7][:8])   # a small slice
+    task = V.VoxCNNTask(V.VoxCNNConfig(channels=(4, 4, 8), bottleneck=16))
+    tc = TrainConfig(epochs=2, batch_size=16, lr=3e-3, warmup_steps=2, progress=False)
+    full = train(task, tr, va, tmp_path / "a", tc)
+    train(task, tr, va, tmp_path / "b", tc, stop_after_epoch=1)            # "interrupted"
+    assert list(pd.read_csv(tmp_path / "b" / TRAIN_LOG).epoch) == [1]
+    resumed = train(task, tr, va, tmp_path / "b", tc)
     a, b = full.state_dict(), resumed.state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
-    la, lb = (pd.read_csv(tmp_path / d / V.LOG).drop(columns="grids_per_s") for d in "ab")
-    assert la.equals(lb)
-    other = V.VoxCNNConfig(channels=(4, 4, 4), bottleneck=16)
-    with pytest.raises(ValueError, match="another network configuration"):
-        V.train_loop(other, pset, tr, va, tmp_path / "a", tc)
+    la, lb = (pd.read_csv(tmp_path / d / TRAIN_LOG).drop(columns="grids_per_s") for d in "ab")
+    assert la.equals(lb) and {"val_iou", "val_bce", "val_accuracy"} <= set(la)
+    other = V.VoxCNNTask(V.VoxCNNConfig(channels=(4, 4, 4), bottleneck=16))
+    with pytest.raises(DataError, match=r"other settings \(model\.net\.channels \[4, 4, 8\] there, \[4, 4, 4\] now"):
+        train(other, tr, va, tmp_path / "a", tc)
 
 
-def test_interrupted_train_voxcnn_writes_no_model(tmp_path, ci_run, pset, monkeypatch):
+def test_interrupted_train_voxcnn_writes_no_model(tmp_path, ci_run, pset):
     import shutil
     run = tmp_path / "run"
     run.mkdir()
     for name in ("render_train", "grids_train.npz"):
         src = ci_run / name
         (shutil.copytree if src.is_dir() else shutil.copy2)(src, run / name)
-    monkeypatch.setitem(V.PROFILES, "ci", {**V.PROFILES["ci"], "channels": (4, 4, 8), "bottleneck": 16,
-                                           "views_per_object": 1})
-    V.train_voxcnn(run, "ci", epochs=2, stop_after_epoch=1, progress=False)
-    assert not (run / "voxcnn.pt").exists() and (run / "train_voxcnn" / V.CHECKPOINT).exists()
-    V.train_voxcnn(run, "ci", epochs=2, progress=False)
-    assert (run / "voxcnn.pt").exists()
-    assert list(pd.read_csv(run / "train_voxcnn" / V.LOG).epoch) == [1, 2]
+    small = config.get_profile("ci", voxcnn_channels=(4, 4, 8), voxcnn_bottleneck=16, voxcnn_views_per_object=1)
+    rd = RunDir(run)
+    model_file = rd.baseline("voxcnn")
+    V.train_voxcnn(rd, small, epochs=2, stop_after_epoch=1, progress=False)
+    assert not model_file.exists() and rd.checkpoint(model_file).exists()
+    V.train_voxcnn(run, small, epochs=2, progress=False)                 # a path works as well as a RunDir
+    assert model_file.exists()
+    assert list(pd.read_csv(rd.train_log(model_file)).epoch) == [1, 2]
 
 
 # ------------------------------------------------------------------ the model file
 
 def test_save_load_round_trip(tmp_path, trained, test_views):
-    path = trained.save(tmp_path / "m.pt")
+    path = trained.save(tmp_path / "m.hbeo")
     back = V.VoxCNNBaseline.load(path)
     assert back.classes == trained.classes and back.net.cfg == trained.net.cfg
     assert back.settings["profile"] == "ci" and back.settings["object_size"] == pytest.approx(1.0)
@@ -234,26 +241,32 @@ def test_save_load_round_trip(tmp_path, trained, test_views):
 
 
 def test_bad_model_files(tmp_path, trained):
-    with pytest.raises(DataError, match="missing.pt"):
-        V.VoxCNNBaseline.load(tmp_path / "missing.pt")
-    junk = tmp_path / "junk.pt"
-    junk.write_bytes(b"not a torch file")
-    with pytest.raises(DataError, match="junk.pt.*not a readable"):
+    """The baseline's loader on bad files; the format's every case is in tests/test_modelfile.py."""
+    import json
+    import zipfile
+    with pytest.raises(DataError, match="missing.hbeo: no such model file"):
+        V.VoxCNNBaseline.load(tmp_path / "missing.hbeo")
+    junk = tmp_path / "junk.hbeo"
+    junk.write_bytes(b"not a model file")
+    with pytest.raises(DataError, match="junk.hbeo: not a readable"):
         V.VoxCNNBaseline.load(junk)
-    other = tmp_path / "other.pt"
-    torch.save({"format_version": 1, "state_dict": {}}, other)
-    with pytest.raises(DataError, match="other.pt.*not a VoxCNN"):
-        V.VoxCNNBaseline.load(other)
-    blob = torch.load(trained.save(tmp_path / "good.pt"), weights_only=False)
-    future = tmp_path / "future.pt"
-    torch.save({**blob, "format_version": 99}, future)
-    with pytest.raises(DataError, match="future.pt.*format 99"):
-        V.VoxCNNBaseline.load(future)
-    broken = tmp_path / "broken.pt"
-    torch.save({**blob, "net_cfg": {**blob["net_cfg"], "channels": [1, 2, 3]}}, broken)
-    with pytest.raises(DataError, match="broken.pt.*inconsistent"):
+    old = tmp_path / "voxcnn.pt"                  # the old torch-pickle format: refused without unpickling
+    torch.save({"format_version": 1, "kind": "hbeo-voxcnn", "state_dict": {}}, old)
+    with pytest.raises(DataError, match="voxcnn.pt: old model file format.*python -m hbeo convert-model"):
+        V.VoxCNNBaseline.load(old)
+    good = trained.save(tmp_path / "good.hbeo")
+    broken = tmp_path / "broken.hbeo"             # a configuration the stored weights do not fit
+    with zipfile.ZipFile(good) as z, zipfile.ZipFile(broken, "w") as out:
+        for name in z.namelist():
+            data = z.read(name)
+            if name == "meta.json":
+                meta = json.loads(data)
+                meta["net_cfg"]["channels"] = [1, 2, 3]
+                data = json.dumps(meta).encode()
+            out.writestr(name, data)
+    with pytest.raises(DataError, match="broken.hbeo: weights.safetensors does not match net_cfg"):
         V.VoxCNNBaseline.load(broken)
-    truncated = tmp_path / "truncated.pt"
-    truncated.write_bytes((tmp_path / "good.pt").read_bytes()[:1000])
-    with pytest.raises(DataError, match="truncated.pt"):
+    truncated = tmp_path / "truncated.hbeo"
+    truncated.write_bytes(good.read_bytes()[:1000])
+    with pytest.raises(DataError, match="truncated.hbeo: not a readable"):
         V.VoxCNNBaseline.load(truncated)

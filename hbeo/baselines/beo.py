@@ -59,9 +59,9 @@ from threadpoolctl import threadpool_limits
 
 from hbeo import conventions as C
 from hbeo.errors import DataError
+from hbeo.rotations import matrix_to_quaternion, super_fibonacci, uniform_so3, z_angle_to_matrix
 from hbeo.storage import read_npz, write_npz
 from hbeo.subspace.partial import iter_partial
-from hbeo.render.poses import super_fibonacci, uniform_so3
 from hbeo.subspace.basis import ObjectSubspace
 
 FORMAT_VERSION = 1
@@ -89,7 +89,7 @@ def grid_spacing(Rs: np.ndarray, n_probe: int = 20000, seed: int = 0) -> dict:
     """Geodesic spacing of a rotation set (degrees): ``nn_mean`` / ``nn_max`` (nearest-neighbour
     distance within the set) and ``cover_mean`` / ``cover_max`` (distance from ``n_probe`` uniformly
     random rotations to the nearest member: the error of an exact search on this grid)."""
-    q = _quaternions(Rs)
+    q = matrix_to_quaternion(Rs)
     def nearest(p, exclude_self):
         out = np.empty(len(p))
         for i in range(0, len(p), 1024):
@@ -99,23 +99,9 @@ def grid_spacing(Rs: np.ndarray, n_probe: int = 20000, seed: int = 0) -> dict:
             out[i:i + 1024] = 2 * np.degrees(np.arccos(np.clip(dots.max(1), -1, 1)))
         return out
     nn = nearest(q, True)
-    cover = nearest(_quaternions(uniform_so3(n_probe, np.random.default_rng(seed))), False)
+    cover = nearest(matrix_to_quaternion(uniform_so3(n_probe, np.random.default_rng(seed))), False)
     return {"n": len(q), "nn_mean": float(nn.mean()), "nn_max": float(nn.max()),
             "cover_mean": float(cover.mean()), "cover_max": float(cover.max())}
-
-
-def _quaternions(Rs) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-    return Rotation.from_matrix(np.asarray(Rs, np.float64)).as_quat()
-
-
-def rot_z(a) -> np.ndarray:
-    """Rotations (n, 3, 3) by angles ``a`` (radians) about +z."""
-    a = np.atleast_1d(np.asarray(a, np.float64))
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros((len(a), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
-    return R
 
 
 class BEO:
@@ -313,7 +299,7 @@ class BEO:
         if pose == "1dof":
             n = self.pose_bins_1dof
             phi = rng.uniform(0, 2 * np.pi / n)
-            return R_true[None] @ rot_z(2 * np.pi * np.arange(n) / n + phi)
+            return R_true[None] @ z_angle_to_matrix(2 * np.pi * np.arange(n) / n + phi)
         return uniform_so3(1, rng)[0][None] @ self._so3_base()
 
     def _so3_base(self):

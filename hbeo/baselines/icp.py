@@ -47,30 +47,13 @@ from scipy.spatial import cKDTree
 
 from hbeo import conventions as C
 from hbeo.errors import DataError
-from hbeo.storage import read_npz, write_npz
-from hbeo.render.poses import super_fibonacci
+from hbeo.rotations import (axis_and_angle_to_matrix, axis_angle_to_matrix, geodesic, project_to_so3,
+                            super_fibonacci, z_angle_to_matrix)
+from hbeo.storage import pack_bits, read_npz, unpack_bits, write_npz
 
 FORMAT_VERSION = 1
 POSES = ("3dof", "1dof")
 _PATIENCE, _REL_GAIN = 3, 1e-3     # an init stops after 3 iterations without a 0.1 % better score
-
-
-# ----------------------------------------------------------------------------- rotations
-
-def _rot_z(angles) -> np.ndarray:
-    a = np.atleast_1d(np.asarray(angles, dtype=np.float64))
-    out = np.zeros((len(a), 3, 3))
-    c, s = np.cos(a), np.sin(a)
-    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1], out[:, 2, 2] = c, -s, s, c, 1.0
-    return out
-
-
-def _axis_rotation(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotations (K, 3, 3) by ``angles`` (K,) about one unit ``axis`` (3,) (Rodrigues)."""
-    a = axis / np.linalg.norm(axis)
-    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    c, s = np.cos(angles)[:, None, None], np.sin(angles)[:, None, None]
-    return np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
 
 
 # ----------------------------------------------------------------------------- rigid updates
@@ -105,20 +88,9 @@ def _yaw_update(M, P, w, R_up, axis):
     cos_term = (np.einsum("kn,knd,knd->k", w, Pc, Qc)
                 - np.einsum("kn,kn,kn->k", w, Pc @ axis, Qc @ axis))
     phi = np.arctan2(sin_term, cos_term)
-    A = _axis_rotation(axis, phi)
+    A = axis_and_angle_to_matrix(axis, phi)
     R = A @ R_up
     return R, pc - np.einsum("kij,kj->ki", A, qc)
-
-
-def _skew_exp(omega):
-    """Rotation matrices (K, 3, 3) of rotation vectors (K, 3) (Rodrigues)."""
-    th = np.linalg.norm(omega, axis=1)
-    k = omega / np.maximum(th, 1e-12)[:, None]
-    Kx = np.zeros((len(omega), 3, 3))
-    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    Kx -= np.swapaxes(Kx, 1, 2)
-    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
-    return np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
 
 
 def _cho_solve(A, b):
@@ -154,7 +126,7 @@ def _plane_update(M, Nm, P, w, R, t, axis, damping=1e-6):
     A += (damping * np.trace(A, axis1=1, axis2=2) / dim + 1e-12)[:, None, None] * np.eye(dim)
     x = _cho_solve(A, b)
     omega = x[:, :3] if axis is None else x[:, :1] * axis
-    E = _skew_exp(omega)
+    E = axis_angle_to_matrix(omega)
     Rn = E @ R
     tn = np.einsum("kij,kj->ki", E, t - c) + c + x[:, -3:]
     return Rn, tn
@@ -320,7 +292,7 @@ class ICPBaseline:
             if np.abs(R_up.T @ R_up - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R_up) - 1) > 1e-4:
                 raise ValueError("R_true is not a rotation matrix (need orthonormal with det +1 within 1e-4)")
             yaw = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(self.n_yaw) / self.n_yaw
-            R0, axis = R_up @ _rot_z(yaw), R_up[:, C.UP_AXIS] / np.linalg.norm(R_up[:, C.UP_AXIS])
+            R0, axis = R_up @ z_angle_to_matrix(yaw), R_up[:, C.UP_AXIS] / np.linalg.norm(R_up[:, C.UP_AXIS])
         t0 = self._initial_translations(P, R0, model, normals)
 
         # coarse: every init, few points; refine: the best few, all points
@@ -334,7 +306,7 @@ class ICPBaseline:
         b = int(np.argmin(score))
         probs = np.zeros(len(self.classes_))
         probs[ci] = 1.0
-        R_best = _orthonormalize(R[b])
+        R_best = project_to_so3(R[b])
         return {"probabilities": probs, "rotation": R_best, "translation": t[b] * size,
                 "grid": self.shapes_[ci].copy(), "fitness": float(score[b] * size), "n_points": int(len(P))}
 
@@ -398,7 +370,7 @@ class ICPBaseline:
                 Rn, tn = _kabsch(M, Pk[a], w)
             else:
                 Rn, tn = _yaw_update(M, Pk[a], w, R[a], axis)
-            dang = np.arccos(np.clip((np.einsum("kij,kij->k", Rn, R[a]) - 1) / 2, -1, 1))
+            dang = geodesic(Rn, R[a])
             still[a] = (dang < self.tol) & (np.linalg.norm(tn - t[a], axis=1) < self.tol)
             R[a], t[a] = Rn, tn
         return best_R, best_t, best_s
@@ -409,7 +381,7 @@ class ICPBaseline:
         self._check()
         meta = {"format_version": FORMAT_VERSION, "params": self.get_params(), "classes": list(self.classes_)}
         return write_npz(path, meta, compressed=True, means=self.means_.astype(np.float32),
-                         shapes=np.packbits(self.shapes_), points=self.model_points_, normals=self.model_normals_,
+                         shapes=pack_bits(self.shapes_), points=self.model_points_, normals=self.model_normals_,
                          offsets=self.model_offsets_)
 
     @classmethod
@@ -425,7 +397,8 @@ class ICPBaseline:
             n = len(classes)
             if means.ndim != 4 or len(means) != n:
                 raise ValueError(f"means have shape {means.shape} for {n} classes")
-            shapes = np.unpackbits(arrays["shapes"], count=means.size).astype(bool).reshape(means.shape)
+            # rows; earlier files hold the same bytes flat (30^3 bits fill whole bytes)
+            shapes = unpack_bits(arrays["shapes"].reshape(n, -1), means.shape[1:])
             offsets = arrays["offsets"].astype(np.int64)
             pts, nrm = arrays["points"], arrays["normals"]
             if (offsets.shape != (n + 1,) or offsets[0] != 0 or offsets[-1] != len(pts) or np.any(np.diff(offsets) < 1)
@@ -436,15 +409,6 @@ class ICPBaseline:
         self.classes_, self.means_, self.shapes_ = classes, means, shapes
         self.model_points_, self.model_normals_, self.model_offsets_ = pts, nrm, offsets
         return self
-
-
-def _orthonormalize(R: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(R)
-    out = U @ Vt
-    if np.linalg.det(out) < 0:
-        U[:, -1] *= -1
-        out = U @ Vt
-    return out
 
 
 def _sample_surface(mesh, n: int, rng: np.random.Generator):

@@ -1,17 +1,20 @@
 """The methods compared in the paper, behind one interface for :func:`hbeo.reproduction.evaluate.evaluate_model`.
 
-=========  ==========================  ===============================================  =====================
-method     pose settings               what it is                                       file in the run folder
-=========  ==========================  ===============================================  =====================
-``hbeo``   ``3dof``                    HBEONet (:mod:`hbeo.model.inference`): depth -> class,     ``model.hbeo``
+=========  ==========================  =======================================================
+method     pose settings               what it is
+=========  ==========================  =======================================================
+``hbeo``   ``3dof``                    HBEONet (:mod:`hbeo.model.inference`): depth -> class,
                                        pose, coefficients in one shot
-``beo``    ``known``, ``1dof``,        BEO (:mod:`hbeo.baselines.beo`): partial grid, partial     ``beo.npz``
+``beo``    ``known``, ``1dof``,        BEO (:mod:`hbeo.baselines.beo`): partial grid, partial
            ``3dof``                    projection, class-pose posterior by search
-``icp``    ``1dof``, ``3dof``          ICP against the true class's mean shape          ``icp.npz``
+``icp``    ``1dof``, ``3dof``          ICP against the true class's mean shape
                                        (:mod:`hbeo.baselines.icp`)
-``voxcnn`` ``known``                   3-D CNN from the partial grid to class and       ``voxcnn.pt``
+``voxcnn`` ``known``                   3-D CNN from the partial grid to class and
                                        completed grid (:mod:`hbeo.baselines.voxcnn`)
-=========  ==========================  ===============================================  =====================
+=========  ==========================  =======================================================
+
+Each lives in one file of the run folder: :attr:`hbeo.rundir.RunDir.model` for ``hbeo``,
+:meth:`hbeo.rundir.RunDir.baseline` for the others.
 
 A baseline answers one view with ``predict_view(depth, intrinsics, R_true, t_true, object_size,
 pose, label_true, rng)`` -> ``{"probabilities": (C,), "rotation": (3, 3), "grid": (30, 30, 30) bool}``.
@@ -20,13 +23,14 @@ object's translation and size (their input must be voxelized in the object's fra
 ``known``, its rotation; ``1dof`` gives the up axis and hides the yaw; the settings in
 :data:`GIVEN_CLASS` get the true class (``label_true``), all others ``label_true=None``.
 :func:`load_method` builds a baseline's file from the run's training grids (or rendered set)
-when it is missing.
+when it is missing; BEO's 3-DOF search grid is the profile's ``beo_so3_grid``.
+
+May import: foundation, data, subspace, render, model, and the other baseline modules.
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 from hbeo import config
+from hbeo.rundir import RunDir
 
 METHODS: dict[str, tuple[str, ...]] = {
     "hbeo": ("3dof",),
@@ -37,11 +41,6 @@ METHODS: dict[str, tuple[str, ...]] = {
 #: (method, pose) settings that are given the true class, as in the paper's pose experiment (BEO's
 #: 3-DOF search over all classes was infeasible there; ICP aligns with the true class's mean shape).
 GIVEN_CLASS = {("beo", "3dof"), ("icp", "1dof"), ("icp", "3dof")}
-#: Rotations in BEO's 3-DOF search grid per profile (super-Fibonacci; mean nearest-neighbour spacing
-#: 27, 15 and 10 degrees; a random rotation lies 16, 9.5 and 6 degrees from the grid on average):
-#: the search costs ~5 ms per candidate at ~80 subspace dimensions on 2 cores.
-BEO_SO3_GRID = {"ci": 400, "cpu": 2048, "full": 8192}
-FILES = {"hbeo": "model.hbeo", "beo": "beo.npz", "icp": "icp.npz", "voxcnn": "voxcnn.pt"}
 
 
 def check_method(method: str, pose: str | None) -> str:
@@ -56,31 +55,32 @@ def check_method(method: str, pose: str | None) -> str:
 
 
 def load_method(method: str, run, profile="cpu", progress: bool = True):
-    """The baseline ``method`` of run folder ``run``: loaded from its file, or fitted on the run's
-    training grids (``beo``, ``icp``) or trained on its rendered set (``voxcnn``) and saved first."""
+    """The baseline ``method`` of run folder ``run`` (a RunDir or a path): loaded from its file, or
+    fitted on the run's training grids (``beo``, ``icp``) or trained on its rendered set (``voxcnn``)
+    and saved first."""
     check_method(method, None)
     if method == "hbeo":
         raise ValueError("hbeo is the model itself: pass method=None to evaluate_model")
-    run = Path(run)
-    path = run / FILES[method]
+    run = RunDir.of(run)
+    path = run.baseline(method)
     if method == "voxcnn":
         from hbeo.baselines.voxcnn import VoxCNNBaseline, train_voxcnn
         if path.exists():
             return _named(VoxCNNBaseline.load(path), method)
         return _named(train_voxcnn(run, profile, progress=progress), method)
+    from hbeo.baselines.beo import BEO
+    from hbeo.baselines.icp import ICPBaseline
     from hbeo.data.gridset import GridSet
-    if method == "beo":
-        from hbeo.baselines.beo import BEO as cls
-        from hbeo.subspace.basis import ObjectSubspace
-        grid = BEO_SO3_GRID[config.get_profile(profile).name]
-        make = lambda: cls(ObjectSubspace.load(run / "subspace.npz"), so3_grid=grid)   # noqa: E731
-    else:
-        from hbeo.baselines.icp import ICPBaseline as cls
-        make = cls
+    from hbeo.subspace.basis import ObjectSubspace
+    cls = BEO if method == "beo" else ICPBaseline
     if path.exists():
         return _named(cls.load(path), method)
-    train = GridSet.load(run / "grids_train.npz")
-    m = make().fit(train.grids, train.labels, train.classes)
+    train = GridSet.load(run.grids("train"))
+    if method == "beo":
+        m = BEO(ObjectSubspace.load(run.subspace), so3_grid=config.get_profile(profile).beo_so3_grid)
+    else:
+        m = ICPBaseline()
+    m = m.fit(train.grids, train.labels, train.classes)
     m.save(path)
     return _named(m, method)
 

@@ -15,19 +15,21 @@ resolution; ``skips=False`` gives the plain encoder-bottleneck-decoder, which at
 learns to predict an empty grid). Loss: cross-entropy + ``occupancy_weight`` x binary
 cross-entropy over all voxels (``pos_weight`` on filled ones).
 
-Files in a run folder
-    ``partial_train.npz`` (``partial_train_vK.npz`` for K views per object): the partial grids of
-    ``render_train`` (computed once, atomically written, recomputed when the rendered set, the
-    grids or ``hbeo/partial.py`` change); ``train_voxcnn/`` checkpoint and CSV log (a rerun
-    resumes exactly); ``voxcnn.pt`` the trained baseline (:class:`VoxCNNBaseline`).
+Training: :class:`VoxCNNTask` in the project's loop (:func:`hbeo.model.train.train`), sizes from
+the profile's ``voxcnn_*`` fields (:class:`hbeo.config.Profile`).
+
+Files in a run folder (:class:`hbeo.rundir.RunDir`)
+    ``RunDir.partial_train(K)``: the partial grids of the rendered training set (computed once,
+    atomically written, recomputed when the rendered set, the grids or
+    ``hbeo/subspace/partial.py`` change); ``RunDir.training(...)`` (``train_voxcnn/``): checkpoint
+    and CSV log (a rerun resumes exactly); ``RunDir.baseline("voxcnn")`` (``voxcnn.hbeo``): the
+    trained baseline (:class:`VoxCNNBaseline`).
+
+May import: foundation, data, subspace, render, model.
 """
 from __future__ import annotations
 
 import json
-import math
-import os
-import time
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -35,43 +37,23 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+from torch.utils.data import Subset
 from tqdm.auto import tqdm
 
-from hbeo import __version__
 from hbeo import config
 from hbeo import conventions as C
-from hbeo.storage import atomic_file, sha256_file
 from hbeo.errors import DataError
-from hbeo.render.renderset import Manifest, load_shard, split_by_object
-from hbeo.model.train import _atomic_save, _write_log, lr_at, pick_device, seed_everything
+from hbeo.model.train import TrainConfig, train, training_history
+from hbeo.render.datasets import load_shard, split_by_object
+from hbeo.render.renderset import Manifest
+from hbeo.rundir import RunDir
+from hbeo.storage import pack_bits, sha256_file, unpack_bits, write_npz
+from hbeo.subspace import partial as partial_mod
 
-FORMAT_VERSION = 1
-KIND = "hbeo-voxcnn"
-CHECKPOINT = "checkpoint.pt"
-LOG = "train_log.csv"
+FORMAT_VERSION = 1                #: of the partial-grid cache
 R3 = C.RESOLUTION ** 3
 OCCUPANCY_PRIOR_LOGIT = -2.0      #: initial occupancy logit (sigmoid = 0.12, about the filled fraction)
 PACKED = (R3 + 7) // 8
-
-#: Sizes per run profile (hbeo.config profiles ci / cpu / full). ``views_per_object``: rendered
-#: views per training object turned into partial grids (None = all the set has).
-PROFILES: dict[str, dict] = {
-    "ci": {"channels": (8, 16, 32), "bottleneck": 64, "epochs": 3, "batch_size": 16, "lr": 3e-3,
-           "views_per_object": None, "pos_weight": 1.5},
-    "cpu": {"channels": (8, 16, 32), "bottleneck": 128, "epochs": 5, "batch_size": 32, "lr": 2e-3,
-            "views_per_object": 3, "pos_weight": 1.5},
-    "full": {"channels": (32, 64, 128), "bottleneck": 512, "epochs": 20, "batch_size": 64, "lr": 1e-3,
-             "views_per_object": 32, "pos_weight": 1.5},
-}
-
-
-def profile_sizes(profile) -> dict:
-    """The VoxCNN sizes of a profile (name or :class:`hbeo.config.Profile`)."""
-    name = profile.name if isinstance(profile, config.Profile) else str(profile)
-    try:
-        return dict(PROFILES[name])
-    except KeyError:
-        raise ValueError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}") from None
 
 
 # --------------------------------------------------------------------------- the network
@@ -209,14 +191,6 @@ def network_input(filled, known) -> torch.Tensor:
 
 # --------------------------------------------------------------------------- the partial training set
 
-def _pack(grids: np.ndarray) -> np.ndarray:
-    return np.packbits(np.asarray(grids, bool).reshape(len(grids), R3), axis=1)
-
-
-def _unpack(packed: np.ndarray) -> np.ndarray:
-    return np.unpackbits(packed, axis=1, count=R3).astype(bool).reshape((-1,) + (C.RESOLUTION,) * 3)
-
-
 class PartialSet(torch.utils.data.Dataset):
     """Partial grids of a rendered training set, with class labels and complete target grids.
 
@@ -243,8 +217,8 @@ class PartialSet(torch.utils.data.Dataset):
 
     def batch(self, indices) -> dict[str, torch.Tensor]:
         idx = np.asarray(indices, np.int64)
-        f, k = _unpack(self.filled[idx]), _unpack(self.known[idx])
-        target = _unpack(self.grids[self.object_index[idx]])
+        f, k = unpack_bits(self.filled[idx]), unpack_bits(self.known[idx])
+        target = unpack_bits(self.grids[self.object_index[idx]])
         return {"x": network_input(f, k), "label": torch.from_numpy(self.labels[idx].copy()),
                 "target": torch.from_numpy(target.astype(np.float32)),
                 "object_index": torch.from_numpy(self.object_index[idx].copy())}
@@ -260,52 +234,44 @@ class PartialSet(torch.utils.data.Dataset):
     def partial(self, indices) -> tuple[np.ndarray, np.ndarray]:
         """(filled, known) bool (n, 30, 30, 30) of views ``indices``."""
         idx = np.asarray(indices, np.int64)
-        return _unpack(self.filled[idx]), _unpack(self.known[idx])
+        return unpack_bits(self.filled[idx]), unpack_bits(self.known[idx])
 
     def targets(self, indices) -> np.ndarray:
         """Complete grids bool (n, 30, 30, 30) of views ``indices``."""
-        return _unpack(self.grids[self.object_index[np.asarray(indices, np.int64)]])
+        return unpack_bits(self.grids[self.object_index[np.asarray(indices, np.int64)]])
 
     def split(self, val_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Indices (train, validation) into this set, split by object
-        (:func:`hbeo.render.renderset.split_by_object` on the rendered set)."""
+        (:func:`hbeo.render.datasets.split_by_object` on the rendered set)."""
         tr, va = split_by_object(self.manifest, val_fraction, seed)
         idx = np.arange(len(self), dtype=np.int64)
         return idx[np.isin(self.image, tr)], idx[np.isin(self.image, va)]
 
 
-def _depth_partial(pm, depth, K, R, t, object_size) -> tuple[np.ndarray, np.ndarray]:
+def _depth_partial(depth, K, R, t, object_size) -> tuple[np.ndarray, np.ndarray]:
     """(filled, known) of one view; a view without object pixels gives an all-unknown grid."""
     depth = np.asarray(depth, np.float32)
     if not (depth > 0).any():
         empty = np.zeros((C.RESOLUTION,) * 3, bool)
         return empty, empty.copy()
-    f, k = pm.depth_to_partial(depth, K, np.asarray(R, np.float64), np.asarray(t, np.float64),
-                               object_size=object_size)
+    f, k = partial_mod.depth_to_partial(depth, K, np.asarray(R, np.float64), np.asarray(t, np.float64),
+                                        object_size=object_size)
     return np.asarray(f, bool), np.asarray(k, bool)
 
 
-def _partial_module():
-    try:
-        from hbeo.subspace import partial
-    except ImportError as err:
-        raise ImportError("hbeo.subspace.partial (depth_to_partial) is needed for the VoxCNN baseline") from err
-    return partial
-
-
-def _cache_meta(run: Path, m: Manifest, views: int, partial_mod) -> dict:
+def _cache_meta(run: RunDir, m: Manifest, views: int) -> dict:
     src = getattr(partial_mod, "__file__", None)
     return {"format_version": FORMAT_VERSION, "views_per_object": int(views),
             "object_size": float(m.settings.object_size),
             "shards": [s["sha256"] for s in m.shards],
-            "grids_sha256": sha256_file(run / "grids_train.npz"),
+            "grids_sha256": sha256_file(run.grids("train")),
             "partial_sha256": sha256_file(src) if src and Path(src).is_file() else None}
 
 
-def _object_grids(run: Path, m: Manifest) -> np.ndarray:
+def _object_grids(run: RunDir, m: Manifest) -> np.ndarray:
     """Packed complete grids (n_objects, 3375) in the rendered set's object order."""
     from hbeo.data.gridset import GridSet
-    path = run / "grids_train.npz"
+    path = run.grids("train")
     if not path.exists():
         raise DataError(path, "no training grids in the run folder (notebook 01, or hbeo.model.pipeline.ensure_render, "
                               "writes them)")
@@ -317,7 +283,7 @@ def _object_grids(run: Path, m: Manifest) -> np.ndarray:
     except KeyError as err:
         raise DataError(path, f"has no grid for rendered object {err.args[0]}; the grids and "
                               f"{m.root} come from different runs") from None
-    return _pack(gs.grids[np.asarray(pos, np.int64)])
+    return pack_bits(gs.grids[np.asarray(pos, np.int64)])
 
 
 def _load_cache(path: Path, meta: dict) -> dict | None:
@@ -333,22 +299,22 @@ def _load_cache(path: Path, meta: dict) -> dict | None:
 
 
 def partial_training_set(run, views_per_object: int | None = None, progress: bool = True) -> PartialSet:
-    """The partial grids of ``run/render_train`` (all views, or the first ``views_per_object`` of each
-    object) with labels and the complete grids of ``run/grids_train.npz`` as targets.
+    """The partial grids of the rendered training set of ``run`` (a RunDir or a path; all views, or
+    the first ``views_per_object`` of each object) with labels and the complete training grids
+    (``RunDir.grids("train")``) as targets.
 
     Computed once with :func:`hbeo.subspace.partial.depth_to_partial` (pose and object size from the rendered
-    set) and cached in ``run/partial_train[_vK].npz`` (atomic); the cache is recomputed when the
-    rendered set, the grids or ``hbeo/partial.py`` change."""
-    run = Path(run)
-    m = Manifest.load(run / "render_train")
+    set) and cached in ``RunDir.partial_train`` (atomic); the cache is recomputed when the
+    rendered set, the grids or ``hbeo/subspace/partial.py`` change."""
+    run = RunDir.of(run)
+    m = Manifest.load(run.renders("train"))
     n_views = int(m.data["views_per_object"])
     k = n_views if views_per_object is None else int(views_per_object)
     if k < 1:
         raise ValueError(f"views_per_object must be >= 1, got {views_per_object}")
     k = min(k, n_views)
-    pm = _partial_module()
-    meta = _cache_meta(run, m, k, pm)
-    path = run / ("partial_train.npz" if k == n_views else f"partial_train_v{k}.npz")
+    meta = _cache_meta(run, m, k)
+    path = run.partial_train(None if k == n_views else k)
     arrays = _load_cache(path, meta)
     if arrays is None:
         grids = _object_grids(run, m)
@@ -364,8 +330,8 @@ def partial_training_set(run, views_per_object: int | None = None, progress: boo
             K = C.Intrinsics(fx, fy, cx, cy, int(w), int(h))
             f_out, k_out = np.empty((len(sel), PACKED), np.uint8), np.empty((len(sel), PACKED), np.uint8)
             for j, i in enumerate(sel):
-                f, kn = _depth_partial(pm, sh["depth"][i], K, sh["rotation"][i], sh["translation"][i], size)
-                f_out[j], k_out[j] = _pack(f[None])[0], _pack(kn[None])[0]
+                f, kn = _depth_partial(sh["depth"][i], K, sh["rotation"][i], sh["translation"][i], size)
+                f_out[j], k_out[j] = pack_bits(f[None])[0], pack_bits(kn[None])[0]
                 bar.update(1)
             parts["filled"].append(f_out)
             parts["known"].append(k_out)
@@ -376,8 +342,7 @@ def partial_training_set(run, views_per_object: int | None = None, progress: boo
         bar.close()
         arrays = {name: np.concatenate(v) for name, v in parts.items()}
         arrays["grids"] = grids
-        with atomic_file(path) as fh:
-            np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
+        write_npz(path, meta, compressed=True, **arrays)
     return PartialSet(arrays["filled"], arrays["known"], arrays["labels"], arrays["object_index"],
                       arrays["image"], arrays["grids"], m.classes, m, meta)
 
@@ -385,191 +350,78 @@ def partial_training_set(run, views_per_object: int | None = None, progress: boo
 # --------------------------------------------------------------------------- training
 
 @dataclass
-class VoxTrainConfig:
-    """Training settings of :func:`train_loop` (same schedule as :class:`hbeo.model.train.TrainConfig`)."""
+class VoxCNNTask:
+    """VoxCNN for :func:`hbeo.model.train.train`: :func:`voxcnn_loss` on :class:`PartialSet` batches
+    (``x``, ``label``, ``target``). Validation: mean loss parts, class accuracy and mean completion
+    IoU (occupancy probability >= 0.5; an empty target and prediction count as 1)."""
 
-    epochs: int = 10
-    batch_size: int = 32
-    lr: float = 2e-3
-    weight_decay: float = 1e-4
-    warmup_steps: int = 20
-    min_lr_ratio: float = 0.05
-    grad_clip: float = 5.0
+    net_cfg: VoxCNNConfig
     pos_weight: float = 1.5           #: BCE weight of filled voxels
     occupancy_weight: float = 1.0     #: weight of the BCE term against the CE term
-    seed: int = 0
-    device: str = "auto"
-    threads: int | None = 0           #: CPU threads for torch: 0 = auto (half the cores), None = torch's setting
-    progress: bool = True
+    kind = "voxcnn"
+    unit = "grids"
 
-    def to_dict(self) -> dict:
-        return asdict(self)
+    def config(self) -> dict:
+        return {"net": self.net_cfg.to_dict(), "pos_weight": float(self.pos_weight),
+                "occupancy_weight": float(self.occupancy_weight)}
 
+    def build(self) -> VoxCNN:
+        return VoxCNN(self.net_cfg)
 
-@contextmanager
-def cpu_threads(n: int | None):
-    """Run the block with ``n`` torch threads (0 = half the usable cores, at least one; None =
-    unchanged), then restore the previous count. Why: on a 2-core machine shared with other jobs,
-    VoxCNN training steps took 3-10x longer with two threads than with one (every small 3D
-    operation waits for its slowest thread, which another process may have pushed off its core)."""
-    before = torch.get_num_threads()
-    if n is None:
-        yield before
-        return
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 2)
-    want = max(1, cores // 2) if n == 0 else int(n)
-    torch.set_num_threads(want)
-    try:
-        yield want
-    finally:
-        torch.set_num_threads(before)
+    def loss(self, net: VoxCNN, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        return voxcnn_loss(net(batch["x"]), batch["label"], batch["target"], self.pos_weight, self.occupancy_weight)
 
-
-def _batches(n: int, batch_size: int, gen: torch.Generator | None):
-    order = torch.randperm(n, generator=gen).numpy() if gen is not None else np.arange(n)
-    for s in range(0, n, batch_size):
-        yield order[s:s + batch_size]
-
-
-@torch.no_grad()
-def evaluate_partial(net: VoxCNN, data: PartialSet, indices, device, cfg: VoxTrainConfig,
-                     batch_size: int = 64) -> dict:
-    """Mean loss parts, class accuracy and mean completion IoU (threshold 0.5) over views ``indices``."""
-    was = net.training
-    net.eval()
-    idx = np.asarray(indices, np.int64)
-    sums, n, correct, ious = {"loss": 0.0, "ce": 0.0, "bce": 0.0}, 0, 0, []
-    for sel in _batches(len(idx), batch_size, None):
-        b = {k: v.to(device) for k, v in data.batch(idx[sel]).items()}
-        out = net(b["x"])
-        loss, parts = voxcnn_loss(out, b["label"], b["target"], cfg.pos_weight, cfg.occupancy_weight)
-        m = len(sel)
-        sums["loss"] += loss.item() * m
-        for k, v in parts.items():
-            sums[k] += v * m
-        n += m
-        correct += int((out["logits"].argmax(1) == b["label"]).sum())
-        pred, tgt = out["occupancy"] >= 0, b["target"] > 0.5
-        inter = (pred & tgt).flatten(1).sum(1).float()
-        union = (pred | tgt).flatten(1).sum(1).float()
-        ious.append(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).cpu())
-    net.train(was)
-    if n == 0:
-        return {}
-    return {**{k: v / n for k, v in sums.items()}, "accuracy": correct / n, "iou": float(torch.cat(ious).mean())}
-
-
-def train_loop(net_cfg: VoxCNNConfig, data: PartialSet, train_idx, val_idx, out_dir,
-               cfg: VoxTrainConfig | None = None, stop_after_epoch: int | None = None) -> VoxCNN:
-    """Train (or resume training) VoxCNN on views ``train_idx`` of ``data``; validation on ``val_idx``.
-
-    The pattern of :func:`hbeo.model.train.train`: AdamW, linear warm-up then cosine decay, an atomic
-    ``checkpoint.pt`` and ``train_log.csv`` in ``out_dir`` after every epoch; a rerun resumes from
-    the checkpoint and ends with the same weights as an uninterrupted run (data order depends on
-    seed and epoch only). ``stop_after_epoch`` ends early (to simulate an interruption). On a CPU
-    it runs with ``cfg.threads`` torch threads (:func:`cpu_threads`)."""
-    cfg = cfg or VoxTrainConfig()
-    if pick_device(cfg.device).type != "cpu":
-        return _train_loop(net_cfg, data, train_idx, val_idx, out_dir, cfg, stop_after_epoch)
-    with cpu_threads(cfg.threads):
-        return _train_loop(net_cfg, data, train_idx, val_idx, out_dir, cfg, stop_after_epoch)
-
-
-def _train_loop(net_cfg, data, train_idx, val_idx, out_dir, cfg, stop_after_epoch):
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    device = pick_device(cfg.device)
-    seed_everything(cfg.seed)
-    net = VoxCNN(net_cfg).to(device)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    train_idx, val_idx = np.asarray(train_idx, np.int64), np.asarray(val_idx, np.int64)
-    if len(train_idx) == 0:
-        raise ValueError("train_loop: no training views")
-    total_steps = math.ceil(len(train_idx) / cfg.batch_size) * cfg.epochs
-    start_epoch, step, history = 0, 0, []
-    ckpt_path, log_path = out / CHECKPOINT, out / LOG
-    if ckpt_path.exists():
-        try:
-            ck = torch.load(ckpt_path, map_location=device, weights_only=False)
-        except Exception as err:
-            raise DataError(ckpt_path, f"not a readable checkpoint ({type(err).__name__}: {err}); "
-                                       f"delete it to start again") from None
-        if ck.get("kind") != KIND or ck.get("net_cfg") != net_cfg.to_dict():
-            raise ValueError(f"{ckpt_path}: checkpoint is for another network configuration; "
-                             f"use another output folder or delete it")
-        old_cfg, new_cfg = ck.get("train_cfg", {}), cfg.to_dict()
-        if diff := [k for k in new_cfg if k not in ("progress", "device", "threads")
-                    and old_cfg.get(k) != new_cfg[k]]:
-            details = ", ".join(f"{k} {old_cfg.get(k)!r} there, {new_cfg[k]!r} now" for k in diff)
-            raise ValueError(f"{ckpt_path}: checkpoint was trained with other settings ({details}); "
-                             f"use another output folder or delete it")
-        net.load_state_dict(ck["model"])
-        opt.load_state_dict(ck["optimizer"])
-        start_epoch, step, history = ck["epoch"] + 1, ck["step"], ck["history"]
-        torch.set_rng_state(ck["torch_rng"])
-    net.train()
-    for epoch in range(start_epoch, cfg.epochs):
-        gen = torch.Generator().manual_seed(cfg.seed * 100_003 + epoch)   # data order depends on epoch only
-        n_batches = math.ceil(len(train_idx) / cfg.batch_size)
-        bar = tqdm(_batches(len(train_idx), cfg.batch_size, gen), total=n_batches,
-                   desc=f"voxcnn epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress, leave=False)
-        t0, seen, run_loss = time.perf_counter(), 0, 0.0
-        for sel in bar:
-            b = {k: v.to(device) for k, v in data.batch(train_idx[sel]).items()}
-            for g in opt.param_groups:
-                g["lr"] = lr_at(step, total_steps, cfg)
-            outp = net(b["x"])
-            loss, _ = voxcnn_loss(outp, b["label"], b["target"], cfg.pos_weight, cfg.occupancy_weight)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-            opt.step()
-            step += 1
-            seen += len(sel)
-            run_loss += loss.item() * len(sel)
-            bar.set_postfix(loss=f"{loss.item():.3f}", grids_s=f"{seen / (time.perf_counter() - t0):.0f}")
-        gps = seen / max(time.perf_counter() - t0, 1e-9)
-        val = evaluate_partial(net, data, val_idx, device, cfg) if len(val_idx) else {}
-        history.append({"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
-                        "train_loss": run_loss / max(seen, 1), "grids_per_s": gps,
-                        **{f"val_{k}": v for k, v in val.items()}})
-        _atomic_save({"kind": KIND, "model": net.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch,
-                      "step": step, "torch_rng": torch.get_rng_state(), "history": history,
-                      "net_cfg": net_cfg.to_dict(), "train_cfg": cfg.to_dict()}, ckpt_path)
-        _write_log(history, log_path)
-        if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
-            break
-    net.eval()
-    return net
+    def validate(self, net: VoxCNN, batches) -> dict[str, float]:
+        sums, n, correct, ious = {"loss": 0.0, "ce": 0.0, "bce": 0.0}, 0, 0, []
+        for b in batches:
+            out = net(b["x"])
+            loss, parts = voxcnn_loss(out, b["label"], b["target"], self.pos_weight, self.occupancy_weight)
+            m = len(b["label"])
+            sums["loss"] += loss.item() * m
+            for k, v in parts.items():
+                sums[k] += v * m
+            n += m
+            correct += int((out["logits"].argmax(1) == b["label"]).sum())
+            pred, tgt = out["occupancy"] >= 0, b["target"] > 0.5
+            inter = (pred & tgt).flatten(1).sum(1).float()
+            union = (pred | tgt).flatten(1).sum(1).float()
+            ious.append(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).cpu())
+        if n == 0:
+            return {}
+        return {**{k: v / n for k, v in sums.items()}, "accuracy": correct / n, "iou": float(torch.cat(ious).mean())}
 
 
 def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progress: bool = True,
-                 val_fraction: float = 0.1, stop_after_epoch: int | None = None,
-                 out_name: str = "voxcnn.pt", threads: int | None = 0) -> "VoxCNNBaseline":
-    """Train VoxCNN on the run's partial training grids (:func:`partial_training_set`) with the
-    profile's sizes (:data:`PROFILES`), split by object for validation; checkpoints go to
-    ``run/train_<stem>/`` (a rerun resumes exactly); writes ``run/<out_name>`` (atomically) once all
-    epochs are done and returns the :class:`VoxCNNBaseline`. ``epochs`` overrides the profile's;
-    ``stop_after_epoch`` ends early without writing the model file (to simulate an interruption);
-    ``threads``: torch threads on a CPU (0 = half the cores, None = torch's setting; see :func:`cpu_threads`)."""
-    run = Path(run)
-    sizes = profile_sizes(profile)
-    data = partial_training_set(run, sizes["views_per_object"], progress=progress)
+                 val_fraction: float = 0.1, stop_after_epoch: int | None = None, threads: int | None = 0,
+                 max_steps: int | None = None) -> "VoxCNNBaseline":
+    """Train VoxCNN on the partial training grids of ``run`` (a RunDir or a path;
+    :func:`partial_training_set`) with the profile's ``voxcnn_*`` sizes, split by object for
+    validation, in the project's loop (checkpoints in ``RunDir.training``; a rerun resumes
+    exactly); writes ``RunDir.baseline("voxcnn")`` once training is done and returns the
+    :class:`VoxCNNBaseline`. ``epochs`` overrides the profile's; ``max_steps`` ends training after
+    that many optimizer steps; ``stop_after_epoch`` (< epochs) ends early without writing the model
+    file (to simulate an interruption); ``threads``: torch threads on a CPU (0 = half the cores,
+    None = torch's setting; see :func:`hbeo.model.train.cpu_threads`)."""
+    run = RunDir.of(run)
+    prof = config.get_profile(profile)
+    data = partial_training_set(run, prof.voxcnn_views_per_object, progress=progress)
     tr, va = data.split(val_fraction, seed)
-    net_cfg = VoxCNNConfig(channels=sizes["channels"], n_classes=len(data.classes), bottleneck=sizes["bottleneck"])
-    tc = VoxTrainConfig(epochs=int(epochs or sizes["epochs"]), batch_size=sizes["batch_size"], lr=sizes["lr"],
-                        pos_weight=sizes["pos_weight"], seed=seed, progress=progress, threads=threads,
-                        warmup_steps=min(100, max(1, len(tr) // sizes["batch_size"])))
-    stem = Path(out_name).stem
-    net = train_loop(net_cfg, data, tr, va, run / f"train_{stem}", tc, stop_after_epoch=stop_after_epoch)
-    history = torch.load(run / f"train_{stem}" / CHECKPOINT, map_location="cpu", weights_only=False)["history"]
-    settings = {"object_size": float(data.manifest.settings.object_size), "threshold": 0.5,
-                "profile": profile.name if isinstance(profile, config.Profile) else str(profile),
-                "views_per_object": int(data.meta["views_per_object"]), "train": tc.to_dict(),
-                "final": history[-1] if history else {}}
+    task = VoxCNNTask(VoxCNNConfig(channels=prof.voxcnn_channels, n_classes=len(data.classes),
+                                   bottleneck=prof.voxcnn_bottleneck), pos_weight=prof.voxcnn_pos_weight)
+    tc = TrainConfig(epochs=int(epochs or prof.voxcnn_epochs), batch_size=prof.voxcnn_batch_size, lr=prof.voxcnn_lr,
+                     warmup_steps=min(100, max(1, len(tr) // prof.voxcnn_batch_size)), seed=seed,
+                     max_steps=max_steps, threads=threads, progress=progress,
+                     data={"views_per_object": int(data.meta["views_per_object"]), "val_fraction": val_fraction})
+    path = run.baseline("voxcnn")
+    net = train(task, Subset(data, tr), Subset(data, va), run.training(path), tc, stop_after_epoch=stop_after_epoch)
+    history = training_history(run.training(path))
+    settings = {"object_size": float(data.manifest.settings.object_size), "threshold": 0.5, "profile": prof.name,
+                "views_per_object": int(data.meta["views_per_object"]),
+                "loss": {"pos_weight": task.pos_weight, "occupancy_weight": task.occupancy_weight},
+                "train": tc.to_dict(), "final": history[-1] if history else {}}
     model = VoxCNNBaseline(net.cpu(), data.classes, settings)
-    if len(history) >= tc.epochs:          # an interrupted run (stop_after_epoch) leaves no model file
-        model.save(run / out_name)
+    if stop_after_epoch is None or stop_after_epoch >= tc.epochs:
+        model.save(path)
     return model
 
 
@@ -586,36 +438,21 @@ class VoxCNNBaseline:
             raise ValueError(f"network has {net.cfg.n_classes} classes, {len(self.classes)} names given")
 
     def save(self, path) -> Path:
-        """Write the baseline to one file (atomically)."""
-        blob = {"format_version": FORMAT_VERSION, "kind": KIND, "hbeo_version": __version__,
-                "net_cfg": self.net.cfg.to_dict(), "state_dict": self.net.state_dict(),
-                "classes": list(self.classes), "settings": self.settings}
-        with atomic_file(path) as f:
-            torch.save(blob, f)
-        return Path(path)
+        """Write the baseline to one file, atomically (:mod:`hbeo.model.modelfile`, kind ``voxcnn``)."""
+        from hbeo.model.modelfile import write_model
+        meta = {"net_cfg": self.net.cfg.to_dict(), "classes": list(self.classes), "settings": self.settings}
+        return write_model(path, "voxcnn", meta, self.net.state_dict())
 
     @classmethod
     def load(cls, path) -> "VoxCNNBaseline":
-        """Read a file written by :meth:`save`; DataError naming the file on a missing, corrupt or
-        incompatible one."""
-        path = Path(path)
-        if not path.is_file():
-            raise DataError(path, "no such VoxCNN baseline file")
+        """Read a file written by :meth:`save` (nothing is unpickled); DataError naming the file on a
+        missing, corrupt, old-format or inconsistent one."""
+        from hbeo.model.modelfile import read_model
+        mf = read_model(path, "voxcnn", lambda cfg: VoxCNN(VoxCNNConfig(**cfg)))
         try:
-            blob = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as err:
-            raise DataError(path, f"not a readable VoxCNN baseline file ({type(err).__name__}: {err})") from None
-        if not isinstance(blob, dict) or blob.get("kind") != KIND:
-            raise DataError(path, "not a VoxCNN baseline file")
-        if blob.get("format_version") != FORMAT_VERSION:
-            raise DataError(path, f"VoxCNN baseline format {blob.get('format_version')}, this hbeo ({__version__}) "
-                                  f"reads format {FORMAT_VERSION}")
-        try:
-            net = VoxCNN(VoxCNNConfig.from_dict(blob["net_cfg"]))
-            net.load_state_dict(blob["state_dict"])
-            return cls(net, blob["classes"], blob["settings"])
-        except Exception as err:
-            raise DataError(path, f"inconsistent VoxCNN baseline file ({type(err).__name__}: {err})") from None
+            return cls(mf.net, mf.meta["classes"], mf.meta["settings"])
+        except (TypeError, ValueError) as err:
+            raise DataError(path, f"inconsistent VoxCNN baseline file ({err})") from None
 
     @torch.no_grad()
     def predict_partial(self, filled, known, batch_size: int = 64) -> tuple[np.ndarray, np.ndarray]:
@@ -638,6 +475,6 @@ class VoxCNNBaseline:
         if pose != "known":
             raise ValueError(f"the VoxCNN baseline needs the true pose (pose='known'), got pose={pose!r}")
         R = np.asarray(R_true, np.float64)
-        f, k = _depth_partial(_partial_module(), depth, intrinsics, R, t_true, object_size)
+        f, k = _depth_partial(depth, intrinsics, R, t_true, object_size)
         probs, occ = self.predict_partial(f, k)
         return {"probabilities": probs[0], "rotation": R, "grid": occ[0] >= self.settings["threshold"]}

@@ -22,7 +22,8 @@ from hbeo import config
 from hbeo import conventions as C
 from hbeo.data.datasets import Dataset, ObjectRecord
 from hbeo.errors import DataError
-from hbeo.storage import read_npz, write_npz
+from hbeo.rundir import RunDir
+from hbeo.storage import pack_bits, read_npz, unpack_bits, write_npz
 from hbeo.data.voxel import voxelize
 
 FORMAT_VERSION = 1
@@ -59,7 +60,7 @@ class GridSet:
         path = Path(path)
         meta = dict(self.meta, format_version=FORMAT_VERSION, split=self.split,
                     classes=list(self.classes), resolution=int(self.grids.shape[1]))
-        return write_npz(path, meta, compressed=True, packed=_pack(self.grids),
+        return write_npz(path, meta, compressed=True, packed=pack_bits(self.grids),
                          labels=self.labels.astype(np.int64), ids=self.ids.astype(str))
 
     @classmethod
@@ -69,13 +70,11 @@ class GridSet:
         meta, a = read_npz(path, ("packed", "labels", "ids"), "grid set", FORMAT_VERSION, "; rebuild it")
         packed, labels, ids = a["packed"], a["labels"], a["ids"]
         r = int(meta["resolution"])
-        grids = np.unpackbits(packed, axis=1, count=r ** 3).astype(bool).reshape(-1, r, r, r)
+        try:
+            grids = unpack_bits(packed, (r, r, r))
+        except ValueError as err:
+            raise DataError(path, f"corrupt grid set ({err})") from None
         return cls(grids, labels, ids, tuple(meta["classes"]), meta["split"], meta)
-
-
-def _pack(grids: np.ndarray) -> np.ndarray:
-    """(N, R, R, R) bool -> (N, ceil(R^3 / 8)) uint8 bit-packed rows."""
-    return np.packbits(grids.reshape(len(grids), int(np.prod(grids.shape[1:]))), axis=1)
 
 
 def record_grid(record: ObjectRecord, settings: dict = VOXEL_SETTINGS) -> np.ndarray:
@@ -134,7 +133,7 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
                disable=not progress, initial=len(records) - sum(len(chunks[k]) for k in todo))
 
     def done(k, grids):
-        write_npz(paths[k], None, compressed=True, grids=_pack(grids))
+        write_npz(paths[k], None, compressed=True, grids=pack_bits(grids))
         bar.update(len(chunks[k]))
 
     needs_mesh = any(not r.has_grid for r in records)
@@ -150,7 +149,7 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     parts = []
     for p in paths:
         with np.load(p) as z:
-            parts.append(np.unpackbits(z["grids"], axis=1, count=r ** 3).astype(bool).reshape(-1, r, r, r))
+            parts.append(unpack_bits(z["grids"], (r, r, r)))
     grids = np.concatenate(parts) if parts else np.zeros((0, r, r, r), bool)
     gs = GridSet(grids, labels, ids, tuple(dataset.classes), split, meta)
     gs.save(final)
@@ -159,16 +158,18 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     return gs
 
 
-def run_gridsets(dataset: str, profile, run, progress: bool = True) -> dict[str, GridSet]:
-    """The run's ``{"train": GridSet, "test": GridSet}``: read from ``run/grids_<split>.npz``
-    (notebook 01 writes them) when present, else built from the dataset (cached) and written there."""
+def run_gridsets(dataset: str, profile, run, progress: bool = True, rebuild: bool = False) -> dict[str, GridSet]:
+    """The run's ``{"train": GridSet, "test": GridSet}``: read from the run folder's grid sets
+    (:meth:`hbeo.rundir.RunDir.grids`) when present, else built from the dataset (cached, see
+    :func:`build_gridset`) and written there. ``rebuild``: build and write them even when present
+    (notebook 01, the step that owns them). ``run``: a :class:`~hbeo.rundir.RunDir` or a path."""
     from hbeo.data import datasets
     prof = config.get_profile(profile)
-    run = Path(run)
+    run = RunDir.of(run)
     out, ds = {}, None
     for split in C.SPLITS:
-        path = run / f"grids_{split}.npz"
-        if path.exists():
+        path = run.grids(split)
+        if path.exists() and not rebuild:
             out[split] = GridSet.load(path)
             continue
         if ds is None:

@@ -17,19 +17,14 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from hbeo.conventions import Intrinsics, rotation_to_axis_angle
-
-
-def roll_matrix(angle: float) -> np.ndarray:
-    """Rotation (3, 3) by ``angle`` (radians) about the camera's z axis."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+from hbeo.conventions import Intrinsics
+from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 
 
 def roll_depth(depth: np.ndarray, K: Intrinsics, angle: float) -> np.ndarray:
     """Depth (H, W) seen by a camera rolled by ``angle`` (radians) about its optical axis: the view
-    of the object turned by :func:`roll_matrix` (angle). Nearest-pixel resampling; 0 where the
-    source pixel lies outside the frame."""
+    of the object turned by :func:`hbeo.rotations.z_angle_to_matrix` (angle). Nearest-pixel
+    resampling; 0 where the source pixel lies outside the frame."""
     if not math.isclose(K.fx, K.fy, rel_tol=1e-6):
         raise ValueError(f"rolling a view needs square pixels (fx == fy), got fx={K.fx}, fy={K.fy}")
     H, W = depth.shape
@@ -70,8 +65,8 @@ class RollAugment(Dataset):
         item = dict(self.base[i])
         a = float(torch.rand(()).item()) * 2 * math.pi
         d = roll_depth(item["depth"][0].numpy(), self.K, a)
-        R = roll_matrix(a) @ item["rotation"].double().numpy()
+        R = z_angle_to_matrix(a) @ item["rotation"].double().numpy()
         item["depth"] = torch.from_numpy(d)[None]
         item["rotation"] = torch.from_numpy(R.astype(np.float32))
-        item["axis_angle"] = torch.from_numpy(rotation_to_axis_angle(R).astype(np.float32))
+        item["axis_angle"] = torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32))
         return item

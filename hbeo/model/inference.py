@@ -6,34 +6,38 @@ settings. ``predict(depth, intrinsics, mask=None)`` takes a user's depth image (
 0 = none) with its own intrinsics, brings it into the model's camera
 (:mod:`hbeo.model.preprocess`), runs the network and back-projects the coefficients to a 30^3
 grid. Poses come back in the user's camera frame (R: object -> camera, see
-:mod:`hbeo.conventions`).
+:mod:`hbeo.conventions`). The file format (``.hbeo``, never unpickled) is
+:mod:`hbeo.model.modelfile`'s.
 """
 from __future__ import annotations
 
 import copy
-import io
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from hbeo import __version__
-from hbeo.storage import atomic_file
-from hbeo.model.augment import roll_depth, roll_matrix
-from hbeo.conventions import Intrinsics, rotation_to_axis_angle
+from hbeo.model.augment import roll_depth
+from hbeo.conventions import Intrinsics
+from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.errors import DataError
+from hbeo.model.modelfile import read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import to_model_view
 from hbeo.subspace.basis import ObjectSubspace
 
-FORMAT_VERSION = 1
 #: inference precisions: float32 (default, exact) or bfloat16 (network weights and activations;
 #: ~2.5x faster convolutions on CPUs with AVX512-BF16; class agreement with float32 ~99 %, see
 #: benchmarks/README.md). The back-projection stays float32.
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
+
+
+def _build_net(cfg: dict) -> HBEONet:
+    """The HBEONet a model file's ``net_cfg`` describes (JSON lists back to tuples)."""
+    return HBEONet(NetConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.items()}))
 
 
 @dataclass
@@ -107,38 +111,25 @@ class HBEO:
 
     # ------------------------------------------------------------ persistence
     def save(self, path) -> Path:
-        """Write the model to one file (atomically; float32 weights whatever the precision)."""
-        buf = io.BytesIO()
-        self.subspace.save(buf)
-        blob = {"format_version": FORMAT_VERSION, "hbeo_version": __version__, "net_cfg": self.net.cfg.to_dict(),
-                "state_dict": self.net.state_dict(), "subspace": buf.getvalue(),
-                "intrinsics": self.intrinsics.as_tuple(), "classes": list(self.classes),
-                "settings": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self.settings.items()}}
-        with atomic_file(path) as f:
-            torch.save(blob, f)
-        return Path(path)
+        """Write the model to one file, atomically (:mod:`hbeo.model.modelfile`; float32 weights
+        whatever the precision)."""
+        meta = {"net_cfg": self.net.cfg.to_dict(), "classes": list(self.classes),
+                "intrinsics": asdict(self.intrinsics), "settings": self.settings}
+        return write_model(path, "hbeo", meta, self.net.state_dict(), self.subspace)
 
     @classmethod
-    def load(cls, path, device: str = "cpu", precision: str = "float32") -> "HBEO":
-        """Read a model file; DataError naming the file on a missing, corrupt or incompatible one.
+    def load(cls, path, precision: str = "float32") -> "HBEO":
+        """Read a model file (:func:`hbeo.model.modelfile.read_model`: nothing is unpickled) onto the
+        CPU; DataError naming the file on a missing, corrupt, old-format or inconsistent one.
         ``precision``: see :meth:`set_precision`."""
-        path = Path(path)
-        if not path.is_file():
-            raise DataError(path, "no such model file")
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {tuple(PRECISIONS)}, got {precision!r}")
+        mf = read_model(path, "hbeo", _build_net)
+        m = mf.meta
         try:
-            blob = torch.load(path, map_location=device, weights_only=False)
-        except Exception as err:
-            raise DataError(path, f"not a readable hbeo model file ({type(err).__name__}: {err})") from None
-        if not isinstance(blob, dict) or "format_version" not in blob:
-            raise DataError(path, "not an hbeo model file")
-        if blob["format_version"] != FORMAT_VERSION:
-            raise DataError(path, f"model format {blob['format_version']}, this hbeo ({__version__}) reads "
-                                  f"format {FORMAT_VERSION}")
-        cfg = blob["net_cfg"]
-        net = HBEONet(NetConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.items()}))
-        net.load_state_dict(blob["state_dict"])
-        sub = ObjectSubspace.load(io.BytesIO(blob["subspace"]))
-        return cls(net, sub, Intrinsics(*blob["intrinsics"]), blob["classes"], blob["settings"], precision)
+            return cls(mf.net, mf.subspace, Intrinsics(**m["intrinsics"]), m["classes"], m["settings"], precision)
+        except (TypeError, ValueError) as err:
+            raise DataError(path, f"inconsistent model file ({err})") from None
 
     # ------------------------------------------------------------ inference
     @torch.inference_mode()
@@ -189,7 +180,7 @@ class HBEO:
         scale = np.array([v.distance / s["ref_distance"] if s["ref_distance"] else 1.0 for v in views])
         trans = np.stack([v.center / np.linalg.norm(v.center) * v.distance for v in views])
         labels = probs.argmax(1)
-        return Prediction(probs, labels, [self.classes[i] for i in labels], R, rotation_to_axis_angle(R), trans,
+        return Prediction(probs, labels, [self.classes[i] for i in labels], R, matrix_to_axis_angle(R), trans,
                           scale, coeffs, grids, {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
                                                  "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3})
 
@@ -200,7 +191,7 @@ class HBEO:
         key = round(angle, 12)
         if key not in cache:
             G = self.net.bin_rotations.float()
-            RG = torch.from_numpy(roll_matrix(angle)).float() @ G
+            RG = torch.from_numpy(z_angle_to_matrix(angle)).float() @ G
             cache[key] = torch.cat([bin_cosines(RG[i:i + 512], G).argmax(1) for i in range(0, len(G), 512)])
         return cache[key]
 

@@ -9,7 +9,7 @@ projection. Input: a depth image (B, 1, H, W), metres, 0 = no object (see
 - ``6d``: the continuous 6-D representation (Zhou et al. 2019: the first two columns of the
   rotation matrix, Gram-Schmidt-orthonormalized), regressed; no discontinuity at pi;
 - ``bins``: logits over a fixed near-uniform grid of ``rotation_bins`` rotations
-  (:func:`hbeo.render.poses.super_fibonacci`), trained with cross-entropy against a Gaussian-smoothed
+  (:func:`hbeo.rotations.super_fibonacci`), trained with cross-entropy against a Gaussian-smoothed
   target around the true rotation; decoded as the most probable bin refined by the
   probability-weighted mean of its neighbours. A distribution can hold several modes (a table
   seen from above: turned by 0 or 180 degrees), where a regression falls between them.
@@ -23,7 +23,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from hbeo.render.poses import super_fibonacci
+from hbeo.rotations import axis_angle_to_matrix, matrix_to_sixd, project_to_so3, sixd_to_matrix, super_fibonacci
 
 ROTATIONS = ("axis_angle", "6d", "bins")
 NORMALIZATIONS = ("none", "center")
@@ -122,33 +122,7 @@ class HBEONet(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
-# ------------------------------------------------------------------ rotations (torch)
-
-def axis_angle_to_matrix(v: torch.Tensor) -> torch.Tensor:
-    """Axis-angle (B, 3), radians -> rotation matrices (B, 3, 3) (Rodrigues)."""
-    theta = v.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    k = v / theta
-    K = torch.zeros(v.shape[0], 3, 3, dtype=v.dtype, device=v.device)
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 0] = -k[:, 2], k[:, 1], k[:, 2]
-    K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = -k[:, 0], -k[:, 1], k[:, 0]
-    s, c = torch.sin(theta)[..., None], torch.cos(theta)[..., None]
-    eye = torch.eye(3, dtype=v.dtype, device=v.device).expand_as(K)
-    return eye + s * K + (1 - c) * (K @ K)
-
-
-def sixd_to_matrix(x: torch.Tensor) -> torch.Tensor:
-    """6-D representation (B, 6) -> rotation matrices (B, 3, 3) whose first two columns are the
-    Gram-Schmidt-orthonormalized halves of x."""
-    a, b = x[:, :3], x[:, 3:]
-    c1 = F.normalize(a, dim=-1)
-    c2 = F.normalize(b - (c1 * b).sum(-1, keepdim=True) * c1, dim=-1)
-    return torch.stack([c1, c2, torch.cross(c1, c2, dim=-1)], dim=-1)
-
-
-def matrix_to_sixd(R: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (B, 3, 3) -> 6-D representation (B, 6): the first two columns."""
-    return torch.cat([R[:, :, 0], R[:, :, 1]], dim=-1)
-
+# ------------------------------------------------------------------ pose heads
 
 def pose_to_matrix(pose: torch.Tensor, rotation: str) -> torch.Tensor:
     """Regressed pose output (B, 3|6) -> rotation matrices (B, 3, 3). For ``bins`` use
@@ -162,14 +136,6 @@ def bin_cosines(R: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
     """cos of the geodesic angle between rotations R (B, 3, 3) and grid (N, 3, 3) -> (B, N):
     (trace(R^T G) - 1) / 2, clamped to [-1, 1]."""
     return ((R.flatten(1) @ grid.flatten(1).T - 1) / 2).clamp(-1.0, 1.0)
-
-
-def project_to_so3(M: torch.Tensor) -> torch.Tensor:
-    """Nearest rotations (B, 3, 3) to matrices M (B, 3, 3) in the Frobenius norm (SVD)."""
-    U, _, Vh = torch.linalg.svd(M)
-    d = torch.sign(torch.det(U @ Vh))
-    D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], dim=-1))
-    return U @ D @ Vh
 
 
 def bins_to_matrix(logits: torch.Tensor, grid: torch.Tensor, radius_deg: float) -> torch.Tensor:

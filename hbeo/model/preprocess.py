@@ -22,6 +22,7 @@ from functools import lru_cache
 import numpy as np
 
 from hbeo.conventions import Intrinsics, backproject
+from hbeo.rotations import direction_to_matrix
 
 
 @dataclass
@@ -49,20 +50,6 @@ def _pixel_rays(K: Intrinsics, zoom: float) -> np.ndarray:
     if zoom == 1.0:
         return _pixel_rays_cached(K, 1.0)
     return _pixel_rays_cached.__wrapped__(K, zoom)
-
-
-def look_at(direction: np.ndarray) -> np.ndarray:
-    """The smallest rotation Q (3, 3) taking the optical axis +z to ``direction`` (no twist about
-    it): virtual camera frame -> user camera frame."""
-    z = np.asarray(direction, np.float64)
-    z = z / np.linalg.norm(z)
-    axis = np.cross([0.0, 0.0, 1.0], z)
-    s, c = np.linalg.norm(axis), z[2]
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * Kx + (1 - c) * Kx @ Kx
 
 
 def check_depth(depth, mask=None, name: str = "depth") -> np.ndarray:
@@ -100,7 +87,7 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     pts, _ = backproject(d, K_user)
     center = np.median(pts, axis=0)
     if recenter:
-        Q = look_at(center)
+        Q = direction_to_matrix(center)        # virtual camera -> user camera: +z onto the centre
         local = pts[:, :2] @ Q[:2, :2] + pts[:, 2:] * Q[2, :2]    # virtual frame, x and y only
         mid = np.median(local, axis=0)
     else:                                          # the virtual frame is the camera's

@@ -1,32 +1,74 @@
-"""Training HBEONet: a plain loop in the spirit of nanoGPT.
+"""The training loop of every network in the project (HBEONet, the 3-D CNN baseline), in the
+spirit of nanoGPT: one small function, :func:`train`.
 
-AdamW with linear warm-up then cosine decay, channels_last, mixed precision on CUDA,
-a checkpoint after every epoch (atomic) from which a rerun resumes exactly (model,
-optimizer, schedule, RNG and data order), a CSV log and tqdm with loss and images/s.
-Batches are dicts of tensors as yielded by :mod:`hbeo.render.renderset` datasets:
-``depth`` (B, 1, H, W) metres, ``label`` (B,), ``rotation`` (B, 3, 3),
-``axis_angle`` (B, 3), ``coeffs`` (B, k).
+A model enters through a :class:`TrainTask` (HBEONet's: :class:`hbeo.model.fit.HBEONetTask`; the
+3-D CNN's: :class:`hbeo.baselines.voxcnn.VoxCNNTask`), which builds the ``nn.Module`` and says what
+its loss and validation metrics are. The loop owns everything else: the device, CPU threads,
+seeding, AdamW with linear warm-up then cosine decay (:func:`lr_at`), gradient clipping, mixed
+precision on CUDA, ``max_steps``, tqdm, the CSV log, and a checkpoint after every epoch (atomic)
+from which a rerun with the same settings resumes exactly (model, optimizer, schedule, RNG and
+data order) and which a run with other settings refuses.
+
+Data enters as torch Datasets whose items are dicts of tensors (or numbers); one function,
+:func:`data_loader`, turns them into batches (dicts whose values lead with the batch dimension),
+so streaming shards or a distributed sampler replace that function only.
+
+Checkpoints (``checkpoint.pt``, :data:`hbeo.rundir.CHECKPOINT`) hold only tensors and plain Python
+values (configurations as dicts, RNG states as tensors and lists) and are read with
+``torch.load(weights_only=True)``: nothing is unpickled. The CSV log (``train_log.csv``) has one
+row per epoch: epoch, optimizer steps so far, learning rate, mean training loss, training
+examples per second (``<unit>_per_s``) and the task's validation metrics (``val_*``).
+
+May import: foundation (hbeo.errors, hbeo.storage, hbeo.rundir) and torch; no model module.
 """
 from __future__ import annotations
 
 import csv
 import math
+import os
 import random
 import time
+from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Iterable, Protocol
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
+from torch import nn
+from torch.utils.data import DataLoader, Dataset
 from tqdm.auto import tqdm
 
+from hbeo.errors import DataError
+from hbeo.rundir import CHECKPOINT, TRAIN_LOG
 from hbeo.storage import atomic_file
-from hbeo.conventions import geodesic_deg
-from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
 
-CHECKPOINT = "checkpoint.pt"
-LOG = "train_log.csv"
+CHECKPOINT_FORMAT = 1
+#: TrainConfig fields that describe the machine, not the run: they may change between a run and its resume.
+ENVIRONMENT = ("num_workers", "device", "threads", "progress")
+
+
+class TrainTask(Protocol):
+    """What a model supplies to :func:`train`.
+
+    ``kind`` names the model in checkpoints; ``unit`` names one example (the log's ``<unit>_per_s``).
+    ``config()`` is a plain dict of everything that decides the model and its loss (checked on
+    resume); ``build()`` makes the untrained module (called after seeding, so its initial weights
+    depend on the seed only); ``loss(module, batch)`` returns the loss tensor to minimize and its
+    parts as floats; ``validate(module, batches)`` returns metrics (floats) over an iterable of
+    batches (already on the device; called in eval mode without gradients).
+    """
+
+    kind: str
+    unit: str
+
+    def config(self) -> dict: ...
+
+    def build(self) -> nn.Module: ...
+
+    def loss(self, module: nn.Module, batch: dict) -> tuple[torch.Tensor, dict[str, float]]: ...
+
+    def validate(self, module: nn.Module, batches: Iterable[dict]) -> dict[str, float]: ...
 
 
 @dataclass
@@ -39,10 +81,11 @@ class TrainConfig:
     min_lr_ratio: float = 0.05
     grad_clip: float = 5.0
     seed: int = 0
-    loss: LossWeights = field(default_factory=LossWeights)
+    max_steps: int | None = None    #: stop after this many optimizer steps (the schedule ends there too)
     num_workers: int = 0
     device: str = "auto"            #: "auto", "cpu" or "cuda"
     amp: bool = True                #: mixed precision (CUDA only)
+    threads: int | None = None      #: torch threads on a CPU: None = torch's setting, 0 = half the cores
     progress: bool = True
     data: dict = field(default_factory=dict)   #: how the data was made (e.g. augmentation); checked on resume
 
@@ -63,133 +106,233 @@ def seed_everything(seed: int) -> None:
 
 
 def lr_at(step: int, total: int, cfg: TrainConfig) -> float:
-    """Linear warm-up to ``lr`` then cosine decay to ``lr * min_lr_ratio``."""
+    """Linear warm-up to ``lr`` then cosine decay to ``lr * min_lr_ratio`` at step ``total``."""
     if step < cfg.warmup_steps:
         return cfg.lr * (step + 1) / cfg.warmup_steps
     progress = min(1.0, (step - cfg.warmup_steps) / max(1, total - cfg.warmup_steps))
     return cfg.lr * (cfg.min_lr_ratio + (1 - cfg.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress)))
 
 
+@contextmanager
+def cpu_threads(n: int | None):
+    """Run the block with ``n`` torch threads (0 = half the usable cores, at least one; None =
+    unchanged), then restore the previous count. Why: on a 2-core machine shared with other jobs,
+    3-D CNN training steps took 3-10x longer with two threads than with one (every small 3-D
+    operation waits for its slowest thread, which another process may have pushed off its core)."""
+    before = torch.get_num_threads()
+    if n is None:
+        yield before
+        return
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 2)
+    torch.set_num_threads(max(1, cores // 2) if n == 0 else int(n))
+    try:
+        yield torch.get_num_threads()
+    finally:
+        torch.set_num_threads(before)
+
+
+def data_loader(dataset: Dataset, cfg: TrainConfig, epoch: int | None = None) -> DataLoader:
+    """The one place a dataset becomes batches. ``epoch``: the training order of that epoch, a
+    permutation drawn from a generator seeded with (seed, epoch) only, so a resumed run sees the
+    same order; None: validation, in order (this loader takes its worker seed from torch's global
+    generator, as torch does)."""
+    if epoch is None:
+        return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=False, num_workers=cfg.num_workers)
+    gen = torch.Generator().manual_seed(cfg.seed * 100_003 + epoch)
+    return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, generator=gen,
+                      num_workers=cfg.num_workers, drop_last=False)
+
+
 def _to(batch: dict, device) -> dict:
     return {k: (v.to(device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
 
 
-def _grid(net: HBEONet):
-    """The rotation-bin grid (N, 3, 3) of a ``bins`` network, else None."""
-    return getattr(net, "bin_rotations", None)
+def _batch_len(batch: dict) -> int:
+    return len(next(v for v in batch.values() if torch.is_tensor(v)))
 
 
-@torch.no_grad()
-def evaluate_batches(net: HBEONet, loader, device, coeff_scale, weights: LossWeights) -> dict:
-    """Mean loss parts, accuracy and median geodesic pose error (degrees) over a loader."""
-    net.eval()
-    sums, n, correct, errors = {"loss": 0.0, "ce": 0.0, "pose": 0.0, "coeff": 0.0}, 0, 0, []
-    for batch in loader:
-        batch = _to(batch, device)
-        out = net(batch["depth"])
-        loss, parts = hbeo_loss(out, batch, net.cfg, weights, coeff_scale, _grid(net))
-        b = len(batch["label"])
-        sums["loss"] += loss.item() * b
-        for k, v in parts.items():
-            sums[k] += v * b
-        n += b
-        correct += int((out["logits"].argmax(1) == batch["label"]).sum())
-        R = net.pose_matrix(out["pose"].float()).cpu().numpy()
-        errors.append(geodesic_deg(R, batch["rotation"].cpu().numpy()))
-    net.train()
-    if n == 0:
-        return {}
-    return {**{k: v / n for k, v in sums.items()}, "accuracy": correct / n,
-            "pose_median_deg": float(np.median(np.concatenate(errors)))}
+# --------------------------------------------------------------------------- checkpoint contents
+
+def _plain(obj, where: str = "checkpoint"):
+    """``obj`` with tuples as lists and numpy scalars as Python numbers; TypeError on anything that
+    is not a tensor, dict, list, str, int, float, bool or None (what ``weights_only`` loads)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v, f"{where}[{k!r}]") for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if obj is None or isinstance(obj, (str, int, float, bool, torch.Tensor)):
+        return obj
+    raise TypeError(f"{where}: {type(obj).__name__} is not a tensor or plain Python value")
 
 
-def _atomic_save(obj, path: Path) -> None:
+def rng_state() -> dict:
+    """torch's (CPU and CUDA), numpy's and Python's global generator states, as tensors and plain values."""
+    _, keys, pos, has_gauss, cached = np.random.get_state()
+    version, internal, gauss_next = random.getstate()
+    return {"torch": torch.get_rng_state(),
+            "cuda": list(torch.cuda.get_rng_state_all()) if torch.cuda.is_available() else [],
+            "numpy": {"keys": keys.tolist(), "pos": int(pos), "has_gauss": int(has_gauss),
+                      "cached_gaussian": float(cached)},
+            "python": {"version": version, "state": list(internal), "gauss_next": gauss_next}}
+
+
+def set_rng_state(state: dict) -> None:
+    """Restore what :func:`rng_state` returned."""
+    torch.set_rng_state(state["torch"].cpu())
+    if state["cuda"] and torch.cuda.is_available() and len(state["cuda"]) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
+    n = state["numpy"]
+    np.random.set_state(("MT19937", np.array(n["keys"], np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    p = state["python"]
+    random.setstate((p["version"], tuple(p["state"]), p["gauss_next"]))
+
+
+def save_checkpoint(ck: dict, path) -> None:
+    """Write a checkpoint atomically (its values must be tensors or plain Python values)."""
     with atomic_file(path) as f:
-        torch.save(obj, f)
+        torch.save(ck, f)
 
 
-def _write_log(history: list[dict], path: Path) -> None:
-    """The whole CSV log from the checkpoint's history, written atomically."""
+def load_checkpoint(path) -> dict:
+    """A checkpoint written by :func:`train`, on the CPU, read with ``weights_only=True``;
+    DataError naming the file when it cannot be read that way or is not one."""
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:
+        first = (str(err).strip().splitlines() or [""])[0]
+        raise DataError(path, f"not a readable checkpoint ({type(err).__name__}: {first}); delete it to "
+                              f"start again") from None
+    if not isinstance(ck, dict) or ck.get("format_version") != CHECKPOINT_FORMAT:
+        got = ck.get("format_version") if isinstance(ck, dict) else None
+        raise DataError(path, f"checkpoint format {got}, this hbeo writes {CHECKPOINT_FORMAT}; delete it to "
+                              f"start again")
+    return ck
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        out.update(_flat(v, f"{prefix}{k}.") if isinstance(v, dict) and v else {f"{prefix}{k}": v})
+    return out
+
+
+def _check_resume(path: Path, ck: dict, kind: str, settings: dict) -> None:
+    """DataError unless checkpoint ``ck`` was made by the same kind of model with the same settings."""
+    if ck.get("kind") != kind:
+        raise DataError(path, f"checkpoint is for a {ck.get('kind')} model, not {kind}; use another output "
+                              f"folder or delete it")
+    was, now = _flat(ck["settings"]), _flat(settings)
+    if diff := [k for k in sorted(set(was) | set(now)) if was.get(k) != now.get(k)]:
+        details = ", ".join(f"{k} {was.get(k)!r} there, {now.get(k)!r} now" for k in diff)
+        raise DataError(path, f"checkpoint was made with other settings ({details}); use another output "
+                              f"folder or delete it")
+
+
+def write_log(history: list[dict], path) -> None:
+    """The whole CSV log (one row per epoch) from the checkpoint's history, written atomically."""
     with atomic_file(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(history[0]))
+        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for row in history for k in row)))
         w.writeheader()
         w.writerows(history)
 
 
-def train(net_cfg: NetConfig, train_set, val_set, out_dir, cfg: TrainConfig | None = None,
-          coeff_scale: torch.Tensor | None = None, stop_after_epoch: int | None = None) -> HBEONet:
-    """Train (or resume training) HBEONet; returns the network after the last epoch.
+# --------------------------------------------------------------------------- the loop
 
-    ``out_dir`` receives ``checkpoint.pt`` after every epoch and ``train_log.csv``. A rerun with
-    the same arguments resumes from the checkpoint and gives the same result as an
-    uninterrupted run. ``coeff_scale`` (k,) divides coefficient errors (default: ones).
-    ``stop_after_epoch`` ends early after that epoch (to simulate an interruption in tests).
-    """
+@torch.no_grad()
+def _validate(task: TrainTask, module: nn.Module, val_set, cfg: TrainConfig, device) -> dict:
+    module.eval()
+    try:
+        metrics = task.validate(module, (_to(b, device) for b in data_loader(val_set, cfg)))
+    finally:
+        module.train()
+    return {k: float(v) for k, v in metrics.items()}
+
+
+def train(task: TrainTask, train_set: Dataset, val_set: Dataset | None, out_dir, cfg: TrainConfig | None = None,
+          stop_after_epoch: int | None = None) -> nn.Module:
+    """Train (or resume training) ``task``'s module; returns it (eval mode) after the last epoch.
+
+    ``out_dir`` (:meth:`hbeo.rundir.RunDir.training`) receives ``checkpoint.pt`` and ``train_log.csv``
+    after every epoch (and after the last step when ``cfg.max_steps`` ends the run inside an epoch).
+    A rerun with the same settings resumes from the checkpoint and ends as an uninterrupted run
+    would; one with other settings (model, loss, schedule, data; not :data:`ENVIRONMENT`) is refused
+    (DataError). ``val_set`` None: no validation. ``stop_after_epoch`` ends early after that epoch
+    (to simulate an interruption in tests)."""
     cfg = cfg or TrainConfig()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     device = pick_device(cfg.device)
+    with nullcontext() if device.type == "cuda" else cpu_threads(cfg.threads):
+        return _train(task, train_set, val_set, Path(out_dir), cfg, device, stop_after_epoch)
+
+
+def _train(task, train_set, val_set, out, cfg, device, stop_after_epoch):
+    if len(train_set) == 0:
+        raise ValueError(f"{out}: the training set is empty")
+    if cfg.max_steps is not None and cfg.max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1 or None, got {cfg.max_steps}")
+    settings = _plain({"model": task.config(), "train": {k: v for k, v in cfg.to_dict().items()
+                                                         if k not in ENVIRONMENT}})
     seed_everything(cfg.seed)
-    net = HBEONet(net_cfg).to(device).to(memory_format=torch.channels_last)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    module = task.build().to(device)
+    opt = torch.optim.AdamW(module.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
-    scale = (coeff_scale if coeff_scale is not None else torch.ones(net_cfg.n_coeffs)).to(device)
-    steps_per_epoch = math.ceil(len(train_set) / cfg.batch_size)
-    total_steps = steps_per_epoch * cfg.epochs
+    total_steps = len(data_loader(train_set, cfg, 0)) * cfg.epochs
+    if cfg.max_steps is not None:
+        total_steps = min(total_steps, cfg.max_steps)
     start_epoch, step, history = 0, 0, []
-    ckpt_path, log_path = out / CHECKPOINT, out / LOG
+    ckpt_path, log_path = out / CHECKPOINT, out / TRAIN_LOG
     if ckpt_path.exists():
-        ck = torch.load(ckpt_path, map_location=device, weights_only=False)
-        if ck["net_cfg"] != net_cfg.to_dict():
-            raise ValueError(f"{ckpt_path}: checkpoint is for another network configuration; "
-                             f"use another output folder or delete it")
-        was = ck.get("train_cfg", {})
-        for key, now in (("loss", cfg.to_dict()["loss"]), ("data", cfg.data)):
-            if key in was and was[key] != now:       # (checkpoints from before "data" existed: not checked)
-                raise ValueError(f"{ckpt_path}: checkpoint was trained with {key} {was[key]}, this run asks "
-                                 f"for {now}; use another output folder (--name) or delete it")
-        net.load_state_dict(ck["model"])
+        ck = load_checkpoint(ckpt_path)
+        _check_resume(ckpt_path, ck, task.kind, settings)
+        module.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         scaler.load_state_dict(ck["scaler"])
         start_epoch, step, history = ck["epoch"] + 1, ck["step"], ck["history"]
-        torch.set_rng_state(ck["torch_rng"])
-    val_loader = DataLoader(val_set, batch_size=cfg.batch_size, shuffle=False, num_workers=cfg.num_workers)
-    net.train()
+        set_rng_state(ck["rng"])
+    module.train()
     for epoch in range(start_epoch, cfg.epochs):
-        gen = torch.Generator().manual_seed(cfg.seed * 100_003 + epoch)   # data order depends on epoch only
-        loader = DataLoader(train_set, batch_size=cfg.batch_size, shuffle=True, generator=gen,
-                            num_workers=cfg.num_workers, drop_last=False)
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", disable=not cfg.progress, leave=False)
+        if step >= total_steps:           # max_steps reached (in a run this call resumed)
+            break
+        bar = tqdm(data_loader(train_set, cfg, epoch), desc=f"{task.kind} epoch {epoch + 1}/{cfg.epochs}",
+                   disable=not cfg.progress, leave=False)
         t0, seen, run_loss = time.perf_counter(), 0, 0.0
         for batch in bar:
             batch = _to(batch, device)
             for g in opt.param_groups:
                 g["lr"] = lr_at(step, total_steps, cfg)
             with torch.autocast(device.type, enabled=use_amp):
-                outp = net(batch["depth"].contiguous(memory_format=torch.channels_last))
-                loss, parts = hbeo_loss(outp, batch, net_cfg, cfg.loss, scale, _grid(net))
+                loss, _ = task.loss(module, batch)
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             scaler.unscale_(opt)
-            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+            torch.nn.utils.clip_grad_norm_(module.parameters(), cfg.grad_clip)
             scaler.step(opt)
             scaler.update()
             step += 1
-            seen += len(batch["label"])
-            run_loss += loss.item() * len(batch["label"])
-            bar.set_postfix(loss=f"{loss.item():.3f}", img_s=f"{seen / (time.perf_counter() - t0):.0f}")
-        ips = seen / max(time.perf_counter() - t0, 1e-9)
-        val = evaluate_batches(net, val_loader, device, scale, cfg.loss)
-        row = {"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
-               "train_loss": run_loss / max(seen, 1), "images_per_s": ips,
-               **{f"val_{k}": v for k, v in val.items()}}
-        history.append(row)
-        _atomic_save({"model": net.state_dict(), "optimizer": opt.state_dict(), "scaler": scaler.state_dict(),
-                      "epoch": epoch, "step": step, "torch_rng": torch.get_rng_state(), "history": history,
-                      "net_cfg": net_cfg.to_dict(), "train_cfg": cfg.to_dict()}, ckpt_path)
-        _write_log(history, log_path)
+            n = _batch_len(batch)
+            seen += n
+            run_loss += loss.item() * n
+            bar.set_postfix({"loss": f"{loss.item():.3f}",
+                             f"{task.unit}_s": f"{seen / (time.perf_counter() - t0):.0f}"})
+            if step >= total_steps:
+                break
+        speed = seen / max(time.perf_counter() - t0, 1e-9)
+        val = _validate(task, module, val_set, cfg, device) if val_set is not None else {}
+        history.append(_plain({"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
+                               "train_loss": run_loss / max(seen, 1), f"{task.unit}_per_s": speed,
+                               **{f"val_{k}": v for k, v in val.items()}}))
+        save_checkpoint({"format_version": CHECKPOINT_FORMAT, "kind": task.kind, "settings": settings,
+                         "model": module.state_dict(), "optimizer": opt.state_dict(), "scaler": scaler.state_dict(),
+                         "epoch": epoch, "step": step, "rng": rng_state(), "history": history}, ckpt_path)
+        write_log(history, log_path)
         if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
             break
-    net.eval()
-    return net
+    return module.eval()
+
+
+def training_history(out_dir) -> list[dict]:
+    """The per-epoch rows (as in ``train_log.csv``) of the checkpoint in ``out_dir``; [] without one."""
+    path = Path(out_dir) / CHECKPOINT
+    return load_checkpoint(path)["history"] if path.exists() else []

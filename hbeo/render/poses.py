@@ -1,7 +1,9 @@
-"""Sampling viewpoints: rotations (uniform over SO(3) or upright) and object placement.
+"""Sampling viewpoints: which rotations (uniform over SO(3) or upright) and where the object sits.
 
 Frames and encodings are those of :mod:`hbeo.conventions`: R takes the canonical object
 frame to the camera frame (OpenCV axes), t is the object centre in the camera frame, metres.
+The rotations themselves are built by :mod:`hbeo.rotations` (:func:`~hbeo.rotations.uniform_so3`,
+:func:`~hbeo.rotations.yaw_elevation_to_matrix`). Imports numpy and the foundation layer only.
 """
 from __future__ import annotations
 
@@ -9,57 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hbeo.rotations import uniform_so3, yaw_elevation_to_matrix
+
 SAMPLERS = ("so3", "upright")
-
-
-def quaternion_to_matrix(w, x, y, z) -> np.ndarray:
-    """Unit quaternions (arrays of any matching shape S, scalar first) -> rotation matrices (S, 3, 3)."""
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
-
-
-def uniform_so3(n: int, rng: np.random.Generator) -> np.ndarray:
-    """n rotation matrices (n, 3, 3) uniform (Haar) on SO(3): normalized Gaussian quaternions."""
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return quaternion_to_matrix(*q.T)
-
-
-#: super-Fibonacci constants (Alexa, CVPR 2022): phi = sqrt(2), psi^4 = psi + 4
-_SF_PHI, _SF_PSI = np.sqrt(2.0), 1.533751168755204288118041
-
-
-def super_fibonacci(n: int) -> np.ndarray:
-    """n rotation matrices (n, 3, 3) spread near-uniformly over SO(3), deterministic, any n: the
-    super-Fibonacci spiral (Alexa, CVPR 2022). Sample i: s = i + 1/2, r = sqrt(s/n), R = sqrt(1 - s/n),
-    quaternion (x, y, z, w) = (r sin(2 pi s / phi), r cos(..), R sin(2 pi s / psi), R cos(..))."""
-    n = int(n)
-    if n < 1:
-        raise ValueError(f"need at least one rotation, got n={n}")
-    s = np.arange(n) + 0.5
-    r, R = np.sqrt(s / n), np.sqrt(1.0 - s / n)
-    a, b = 2 * np.pi * s / _SF_PHI, 2 * np.pi * s / _SF_PSI
-    return quaternion_to_matrix(R * np.cos(b), r * np.sin(a), r * np.cos(a), R * np.sin(b))
-
-
-def upright(yaw: np.ndarray, elevation: np.ndarray) -> np.ndarray:
-    """Rotations (n, 3, 3) for a camera without roll looking down at ``elevation`` (radians)
-    on an object turned by ``yaw`` (radians) about its up axis (+z). At yaw 0 the camera sits
-    on the object's -y side, facing its front."""
-    yaw, elevation = np.atleast_1d(yaw), np.atleast_1d(elevation)
-    ce, se = np.cos(elevation), np.sin(elevation)
-    zeros, ones = np.zeros_like(ce), np.ones_like(ce)
-    x = np.stack([ones, zeros, zeros], -1)             # camera right, world axes
-    y = np.stack([zeros, -se, -ce], -1)                # camera down
-    f = np.stack([zeros, ce, -se], -1)                 # camera forward
-    R_cw = np.stack([x, y, f], axis=1)                 # world -> camera
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    Rz = np.zeros((len(yaw), 3, 3))
-    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = cy, -sy, sy, cy, 1.0
-    return R_cw @ Rz
 
 
 @dataclass(frozen=True)
@@ -93,7 +47,7 @@ class ViewSampler:
             R = uniform_so3(n, rng)
         else:
             e_lo, e_hi = np.radians(self.elevation_deg)
-            R = upright(rng.uniform(0, 2 * np.pi, n), rng.uniform(e_lo, e_hi, n))
+            R = yaw_elevation_to_matrix(rng.uniform(0, 2 * np.pi, n), rng.uniform(e_lo, e_hi, n))
         z = rng.uniform(*self.distance, size=n)
         xy = rng.uniform(-self.shift, self.shift, size=(n, 2)) * z[:, None]
         return R, np.column_stack([xy, z])

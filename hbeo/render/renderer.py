@@ -1,4 +1,8 @@
-"""Depth images of meshes: mesh preparation, two rendering backends and a sensor-noise model.
+"""Depth images of meshes: mesh preparation and two rendering backends.
+
+Owns :class:`Renderer`, :func:`prepare_mesh` / :func:`grid_mesh` / :func:`record_mesh` and the
+choice of backend and OpenGL platform; the sensor-noise model is :mod:`hbeo.render.noise`.
+Imports the foundation and :mod:`hbeo.data.meshio` only.
 
 Units and frames (see :mod:`hbeo.conventions`)
     Meshes handed to :class:`Renderer` are *prepared* (:func:`prepare_mesh`, :func:`grid_mesh`):
@@ -20,11 +24,9 @@ Backends
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import os
+import subprocess
 import sys
-from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -144,62 +146,20 @@ def embree_available() -> bool:
 
 
 def _egl_works() -> bool:
-    """Whether an EGL device can give an OpenGL 4.1 core context (checked with ctypes only,
-    without importing PyOpenGL, so the platform can still be chosen afterwards)."""
+    """Whether pyrender can open its EGL context here (EGL device ``EGL_DEVICE_ID``, default 0).
+
+    A probe because no library answers this: pyrender only reads ``PYOPENGL_PLATFORM`` and
+    PyOpenGL fixes its platform when OpenGL is first imported, so a failed EGL attempt cannot
+    fall back to OSMesa in the same process. The child process does exactly what
+    :class:`Renderer` will do (a crash of a broken driver cannot take this process down).
+    """
+    code = "import pyrender; pyrender.OffscreenRenderer(8, 8).delete()"
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
     try:
-        lib = ctypes.CDLL(ctypes.util.find_library("EGL") or "libEGL.so.1")
-    except OSError:
+        res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, timeout=120, check=False)
+    except (OSError, subprocess.SubprocessError):
         return False
-    try:
-        vp, i32 = ctypes.c_void_p, ctypes.c_int32
-        lib.eglGetProcAddress.restype, lib.eglGetProcAddress.argtypes = vp, [ctypes.c_char_p]
-        q, g = lib.eglGetProcAddress(b"eglQueryDevicesEXT"), lib.eglGetProcAddress(b"eglGetPlatformDisplayEXT")
-        if not q or not g:
-            return False
-        query = ctypes.CFUNCTYPE(ctypes.c_uint, i32, ctypes.POINTER(vp), ctypes.POINTER(i32))(q)
-        get_display = ctypes.CFUNCTYPE(vp, ctypes.c_uint, vp, vp)(g)
-        n = i32(0)
-        if not query(0, None, ctypes.byref(n)) or n.value < 1:
-            return False
-        devices = (vp * n.value)()
-        query(n.value, devices, ctypes.byref(n))
-        idx = int(os.environ.get("EGL_DEVICE_ID", "0"))
-        if not 0 <= idx < n.value:
-            return False
-        dpy = get_display(0x313F, devices[idx], None)           # EGL_PLATFORM_DEVICE_EXT
-        if not dpy:
-            return False
-        lib.eglInitialize.argtypes = [vp, ctypes.POINTER(i32), ctypes.POINTER(i32)]
-        lib.eglChooseConfig.argtypes = [vp, ctypes.POINTER(i32), ctypes.POINTER(vp), i32, ctypes.POINTER(i32)]
-        lib.eglCreateContext.restype = vp
-        lib.eglCreateContext.argtypes = [vp, vp, vp, ctypes.POINTER(i32)]
-        lib.eglDestroyContext.argtypes = [vp, vp]
-        lib.eglTerminate.argtypes = [vp]
-        lib.eglBindAPI.argtypes = [ctypes.c_uint]
-        major, minor = i32(), i32()
-        if not lib.eglInitialize(dpy, ctypes.byref(major), ctypes.byref(minor)):
-            return False
-        try:
-            attrs = (i32 * 9)(0x3033, 0x0001,   # SURFACE_TYPE: PBUFFER_BIT
-                              0x3025, 24,       # DEPTH_SIZE
-                              0x3040, 0x0008,   # RENDERABLE_TYPE: OPENGL_BIT
-                              0x3042, 0x0008,   # CONFORMANT: OPENGL_BIT
-                              0x3038)           # NONE
-            config, count = vp(), i32()
-            if not lib.eglChooseConfig(dpy, attrs, ctypes.byref(config), 1, ctypes.byref(count)) or count.value < 1:
-                return False
-            if not lib.eglBindAPI(0x30A2):      # EGL_OPENGL_API
-                return False
-            cattrs = (i32 * 7)(0x3098, 4, 0x30FB, 1, 0x30FD, 0x1, 0x3038)  # 4.1 core
-            ctx = lib.eglCreateContext(dpy, config, None, cattrs)
-            if not ctx:
-                return False
-            lib.eglDestroyContext(dpy, ctx)
-            return True
-        finally:
-            lib.eglTerminate(dpy)
-    except (AttributeError, OSError, TypeError, ValueError, ctypes.ArgumentError):
-        return False
+    return res.returncode == 0
 
 
 def gl_platform() -> str:
@@ -504,108 +464,3 @@ class Renderer:
             cam.znear = max(self.znear, 0.9 * (zc[i] - info.radius))
             cam.zfar = zc[i] + 1.1 * info.radius + 0.01
             out[i] = renderer.render(scene, flags=flags, seg_node_map=seg)
-
-
-# ----------------------------------------------------------------------------- sensor noise
-
-@dataclass
-class SensorNoise:
-    """Kinect-like corruption of a clean depth image (all parts optional; zero disables one).
-
-    sigma_a, sigma_b: depth-dependent Gaussian noise, sigma = a + b z^2 (metres; defaults fit
-    Nguyen et al. 2012's Kinect axial noise over 0.5-3 m: 1.9 mm at 1 m, 6.4 mm at 2 m).
-    disparity_step: z is quantized in disparity (1/z, 1/m) with this step, so depth steps are
-    ``disparity_step * z^2`` (1.5 mm at 1 m, 6 mm at 2 m). grazing_deg: pixels whose surface
-    normal (from the depth image's gradients) is more than this angle from the viewing ray are
-    dropped. edge_p: probability of dropping each pixel within 1 pixel of the silhouette.
-    seg_px: the object mask is eroded or dilated (sign random) by 0..seg_px pixels; dilated
-    pixels take the depth of the nearest object pixel (mixed pixels at the boundary).
-    """
-
-    sigma_a: float = 0.0004
-    sigma_b: float = 0.0015
-    disparity_step: float = 0.0015
-    grazing_deg: float = 78.0
-    edge_p: float = 0.3
-    seg_px: int = 2
-
-    def apply(self, depth: np.ndarray, K: C.Intrinsics, rng: np.random.Generator) -> np.ndarray:
-        """Noisy copy of depth (H, W) or (N, H, W), float32, metres, 0 = no data. Deterministic given rng."""
-        d = np.asarray(depth, dtype=np.float32)
-        if d.ndim == 3:
-            return np.stack([self.apply(x, K, rng) for x in d]) if len(d) else d.copy()
-        if d.shape != (K.height, K.width):
-            raise ValueError(f"depth image is {d.shape}, intrinsics are for {K.height}x{K.width} (rows x cols)")
-        if not np.isfinite(d).all() or (d < 0).any():
-            raise ValueError("depth must be finite and >= 0 (0 = no object)")
-        from scipy import ndimage
-        d = d.copy()
-        mask = d > 0
-        if not mask.any():
-            return d
-        keep = mask.copy()
-        if self.grazing_deg is not None and self.grazing_deg < 90:
-            keep &= _grazing_cos(d, K) >= np.cos(np.radians(self.grazing_deg))
-        if self.edge_p > 0:
-            border = mask & ~ndimage.binary_erosion(mask, structure=np.ones((3, 3), bool), border_value=0)
-            keep &= ~(border & (rng.random(d.shape) < self.edge_p))
-        if self.seg_px > 0:
-            k = int(rng.integers(0, self.seg_px + 1))
-            if k > 0 and rng.random() < 0.5:           # erode the segmentation
-                keep &= ndimage.binary_erosion(mask, iterations=k, border_value=0)
-            elif k > 0:                                  # dilate: bleed nearest object depths outward
-                grown = ndimage.binary_dilation(mask, iterations=k)
-                _, (ri, ci) = ndimage.distance_transform_edt(~mask, return_indices=True)
-                new = grown & ~mask
-                d[new] = d[ri[new], ci[new]]
-                keep |= new
-        z = d[keep].astype(np.float64)
-        if self.sigma_a > 0 or self.sigma_b > 0:
-            z = z + rng.normal(size=z.shape) * (self.sigma_a + self.sigma_b * z * z)
-        if self.disparity_step and self.disparity_step > 0:
-            with np.errstate(divide="ignore"):
-                q = np.round(1.0 / (np.maximum(z, 1e-6) * self.disparity_step))
-                z = np.where(q > 0, 1.0 / (np.maximum(q, 1) * self.disparity_step), 0.0)
-        z[~np.isfinite(z) | (z <= 0)] = 0.0
-        out = np.zeros_like(d)
-        out[keep] = z.astype(np.float32)
-        return out
-
-
-def _grazing_cos(depth: np.ndarray, K: C.Intrinsics) -> np.ndarray:
-    """|cos| of the angle between the surface normal (from depth gradients) and the viewing ray,
-    per pixel (H, W); 1 where the normal cannot be estimated (isolated pixels)."""
-    H, W = depth.shape
-    z = depth.astype(np.float64)
-    valid = z > 0
-    u = (np.arange(W) - K.cx) / K.fx
-    v = (np.arange(H) - K.cy) / K.fy
-    P = np.empty((H, W, 3))
-    P[..., 0], P[..., 1], P[..., 2] = z * u[None, :], z * v[:, None], z
-
-    def tangent(axis):
-        fwd = np.zeros_like(P)
-        ok_f = np.zeros((H, W), bool)
-        sl_a = [slice(None)] * 2
-        sl_b = [slice(None)] * 2
-        sl_a[axis], sl_b[axis] = slice(0, -1), slice(1, None)
-        sa, sb = tuple(sl_a), tuple(sl_b)
-        fwd[sa] = P[sb] - P[sa]
-        ok_f[sa] = valid[sb] & valid[sa]
-        bwd = np.zeros_like(P)
-        ok_b = np.zeros((H, W), bool)
-        bwd[sb] = fwd[sa]
-        ok_b[sb] = ok_f[sa]
-        both = ok_f & ok_b
-        tan = np.where(both[..., None], (fwd + bwd) / 2, np.where(ok_f[..., None], fwd, bwd))
-        return tan, ok_f | ok_b
-
-    tu, ok_u = tangent(1)
-    tv, ok_v = tangent(0)
-    n = np.cross(tu, tv)
-    nn = np.linalg.norm(n, axis=-1)
-    pn = np.linalg.norm(P, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.abs((n * P).sum(-1)) / (nn * pn)
-    ok = valid & ok_u & ok_v & (nn > 0)
-    return np.where(ok, c, 1.0)

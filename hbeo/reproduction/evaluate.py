@@ -41,8 +41,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hbeo import __version__
-from hbeo.conventions import UP_SYMMETRY, geodesic_deg
+from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
+from hbeo.rotations import geodesic_deg, z_angle_to_matrix
 from hbeo.subspace.metrics import edt_error, iou, naive_error
 
 
@@ -51,8 +52,7 @@ def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> 
     min over k of angle(R_pred, R_true @ Rz(2 pi k / order))."""
     errs = []
     for k in range(max(1, order)):
-        a = 2 * np.pi * k / max(1, order)
-        Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+        Rz = z_angle_to_matrix(2 * np.pi * k / max(1, order))
         errs.append(geodesic_deg(R_pred, R_true @ Rz))
     return np.min(errs, axis=0)
 
@@ -62,7 +62,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                    chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
-    Views come from :class:`hbeo.render.renderset.ObjectViews` with the model's render settings, ``views``
+    Views come from :class:`hbeo.render.views.ObjectViews` with the model's render settings, ``views``
     per object, ``seed``, ``noise`` and (if given) ``sampler``: object i of the split gets the same
     random stream a rendered set of that split would give it.
 
@@ -73,7 +73,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     ``rolls``: HBEO's test-time roll averaging (:meth:`hbeo.model.inference.HBEO.predict`; bins models).
     """
     from hbeo.baselines.methods import GIVEN_CLASS
-    from hbeo.render.renderset import ObjectViews, RenderSettings
+    from hbeo.render.views import ObjectViews, RenderSettings
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
     over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}

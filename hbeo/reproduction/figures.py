@@ -3,23 +3,32 @@
 :func:`render_voxels` draws an occupancy grid as an orthographic, Lambert-shaded
 image in pure numpy (milliseconds per grid, unlike matplotlib's ``voxels``), seen
 from azimuth ``azim`` (degrees about +z, from +x toward +y) and elevation ``elev``
-(degrees above the xy plane). The canonical frame's +z is up in the picture.
+(degrees above the xy plane). The canonical frame's +z is up in the picture. Panels for axes
+(depth images, confusion matrices, error violins) and :func:`save`, which writes a figure into the
+run folder (:meth:`hbeo.rundir.RunDir.figure`).
+
+May import: foundation (matplotlib lazily).
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
 from hbeo import conventions as C
+from hbeo.rotations import view_deg_to_matrix
+from hbeo.rundir import RunDir
+from hbeo.storage import atomic_file
 
 
-def _view_rotation(azim: float, elev: float) -> np.ndarray:
-    """Rows: image right, image up, toward the viewer, in grid axes."""
-    a, e = np.radians(azim), np.radians(elev)
-    toward = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
-    right = np.array([-np.sin(a), np.cos(a), 0.0])
-    up = np.cross(toward, right)
-    return np.stack([right, up, toward])
+def save(fig, run, name: str, dpi: int = 90, **savefig_kw) -> Path:
+    """Write matplotlib figure ``fig`` as the run's PNG ``name`` (``NN_name.png``) atomically;
+    returns the path. ``savefig_kw`` go to ``Figure.savefig`` (e.g. ``bbox_inches="tight"``)."""
+    path = RunDir.of(run).figure(name)
+    with atomic_file(path) as f:
+        fig.savefig(f, format="png", dpi=dpi, **savefig_kw)
+    return path
 
 
 def render_voxels(grid: np.ndarray, azim: float = -60.0, elev: float = 25.0, size: int = 160,
@@ -35,7 +44,7 @@ def render_voxels(grid: np.ndarray, azim: float = -60.0, elev: float = 25.0, siz
     smooth = ndimage.gaussian_filter(grid.astype(np.float32), 1.0)
     normals = -np.stack(np.gradient(smooth), axis=-1)[shell]
     normals /= np.linalg.norm(normals, axis=1, keepdims=True) + 1e-9
-    rot = _view_rotation(azim, elev)
+    rot = view_deg_to_matrix(azim, elev)                      # rows: right, up, toward the viewer
     pts = (np.argwhere(shell) + 0.5 - r / 2.0) @ rot.T          # (N, 3): right, up, toward viewer
     light = rot.T @ np.array([0.4, 0.6, 0.7])
     light /= np.linalg.norm(light)

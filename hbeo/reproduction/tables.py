@@ -1,14 +1,27 @@
-"""The paper's tables and claims, built from evaluation metrics (:mod:`hbeo.reproduction.evaluate` JSON dicts).
+"""The paper's tables and claims, built from evaluation metrics (:mod:`hbeo.reproduction.evaluate` JSON dicts),
+and writing any notebook table into the run folder.
 
-Every table carries a ``source`` column: ``reported`` (the paper, ``paper/reported/*.csv``) or
-``reproduced`` (this run). :func:`to_markdown` writes any of them as a Markdown table.
+Every paper table carries a ``source`` column: ``reported`` (the paper, :func:`paper_table`, from
+``paper/reported/*.csv``) or ``reproduced`` (this run). :func:`to_markdown` formats any table as
+Markdown; :func:`save_csv` and :func:`save_markdown` write one (atomically) to
+:meth:`hbeo.rundir.RunDir.table`.
+
+May import: foundation.
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from hbeo import config
 from hbeo.conventions import CLASSES
+from hbeo.rundir import RunDir
+from hbeo.storage import atomic_text
+
+#: The paper's reported numbers (``table1_classification.csv``, ``table2_runtime.csv``).
+REPORTED = config.REPO_ROOT / "paper" / "reported"
 
 #: Display names of (method, pose) settings, as the paper labels them.
 LABELS = {("hbeo", "3dof"): "HBEO (3-DOF)", ("beo", "known"): "BEO (known pose)", ("beo", "1dof"): "BEO (1-DOF)",
@@ -21,6 +34,26 @@ _PAPER_SETTING = {"known_pose": "known", "unknown_pose_1dof": "1dof", "unknown_p
 def label(metrics: dict) -> str:
     key = (metrics["method"], metrics["pose"])
     return LABELS.get(key, f"{key[0]} ({key[1]})")
+
+
+def paper_table(name: str) -> pd.DataFrame:
+    """The paper's reported numbers: ``table1_classification`` or ``table2_runtime``."""
+    return pd.read_csv(REPORTED / f"{name}.csv")
+
+
+def save_csv(df: pd.DataFrame, run, name: str, index: bool = False) -> Path:
+    """Write ``df`` to the run's table ``name`` (``NN_name.csv``) atomically; returns the path."""
+    path = RunDir.of(run).table(name)
+    atomic_text(path, df.to_csv(index=index))
+    return path
+
+
+def save_markdown(df: pd.DataFrame, run, name: str, floatfmt: str = "{:.1f}", note: str = "") -> Path:
+    """Write ``df`` as :func:`to_markdown` (followed by ``note``) to the run's ``NN_name.md``
+    atomically; returns the path."""
+    path = RunDir.of(run).table(name, "md")
+    atomic_text(path, to_markdown(df, floatfmt=floatfmt) + note)
+    return path
 
 
 def to_markdown(df: pd.DataFrame, floatfmt: str = "{:.1f}", index: bool = False) -> str:
@@ -164,3 +197,25 @@ def claims(evals: list[dict]) -> pd.DataFrame:
         add("HBEO completion is better than an end-to-end network with known pose (3DShapeNets' role)",
             f"HBEO {he:.1f}, 3-D CNN {ve:.1f}", he < ve)
     return pd.DataFrame(rows)
+
+
+def accuracy_summary(evals: list[dict]) -> pd.DataFrame:
+    """Accuracy (%) and query count of each evaluation, one row each."""
+    return pd.DataFrame([{"method": label(m), "accuracy (%)": 100 * m["accuracy"], "queries": m["n_queries"]}
+                         for m in evals]).set_index("method")
+
+
+def worse_than_chance(evals: list[dict]) -> list[str]:
+    """Labels of the evaluations whose accuracy is not above chance (1 / number of classes)."""
+    return [label(m) for m in evals if m["accuracy"] <= 1 / len(m["classes"])]
+
+
+def per_class(metrics: dict) -> pd.DataFrame:
+    """One evaluation's per-class metrics, a row per class."""
+    return pd.DataFrame(metrics["per_class"]).T
+
+
+def table2_note(hw: dict) -> str:
+    """The hardware line under Table II (``hw`` from :func:`hbeo.reproduction.provenance.hardware`)."""
+    return (f"\n\nReproduced on: {hw['cpu']}, {hw['cores']} cores, {hw['gpu'] or 'no GPU'}. "
+            "Paper: 4-core Intel CPU + GTX 1070 (Matlab BEO, TensorFlow HBEONet).\n")

@@ -1,1 +1,10 @@
-"""subspace"""
+"""The object subspace (Sec. III-A of HBEO, Sec. III of BEO): VBPCA, the shared basis, partial views.
+
+Owns Variational Bayesian PCA (:mod:`~hbeo.subspace.vbpca`), the shared orthonormal basis
+:class:`~hbeo.subspace.basis.ObjectSubspace` (project, reconstruct, partial projection), carving a
+depth image at a pose hypothesis into known-filled / known-empty / unknown voxels
+(:mod:`~hbeo.subspace.partial`), and the completion metrics and protocol
+(:mod:`~hbeo.subspace.metrics`, :mod:`~hbeo.subspace.completion`).
+
+May import: the foundation modules and :mod:`hbeo.data`.
+"""

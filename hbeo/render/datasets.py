@@ -1,0 +1,236 @@
+"""Rendered sets as training data: shard reading and the torch datasets.
+
+:func:`load_shard` reads one shard of a set written by :func:`hbeo.render.renderset.render_set`;
+:class:`DepthShards` serves a whole set as a map-style torch dataset, shuffled shard-wise by
+:class:`ShardSampler` and split into train/validation by object with :func:`split_by_object`;
+:class:`StreamingDepth` renders the same images on the fly (for sets too big for disk).
+
+Items (dicts of tensors, what :mod:`hbeo.model.train` takes)
+    ``depth`` (1, H, W) float32 metres (0 = no object), ``label`` int64, ``rotation`` (3, 3)
+    and ``axis_angle`` (3,) float32 (object -> camera, :mod:`hbeo.conventions`),
+    ``translation`` (3,) float32 metres, ``object_index`` int64 and, if the set has them,
+    ``coeffs`` (k,) float32.
+
+Imports the foundation, torch and :mod:`hbeo.render` (views, renderset).
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset as TorchDataset, IterableDataset, Sampler, get_worker_info
+
+from hbeo.errors import DataError
+from hbeo.render.renderset import SHARD_KEYS, Manifest
+from hbeo.render.views import SPLIT_CODES, ObjectViews, RenderSettings, _split_code
+from hbeo.storage import unpack_bits
+
+
+def load_shard(path) -> dict:
+    """All arrays of one shard, ``mask`` unpacked to bool (N, H, W)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise DataError(path, "no such shard") from None
+    except Exception as err:
+        raise DataError(path, f"not a readable shard ({type(err).__name__}: {err})") from None
+    if missing := [k for k in SHARD_KEYS if k not in data]:
+        raise DataError(path, f"shard lacks arrays {missing}")
+    n, h, w = data["depth"].shape
+    data["mask"] = unpack_bits(data["mask"], (h, w))
+    return data
+
+
+
+def _item(arrays: dict, i: int) -> dict:
+    """One image of shard-layout arrays -> the dict of tensors the training loop takes."""
+    out = {
+        "depth": torch.from_numpy(arrays["depth"][i].astype(np.float32))[None],
+        "label": torch.tensor(int(arrays["label"][i]), dtype=torch.long),
+        "rotation": torch.from_numpy(np.array(arrays["rotation"][i], np.float32)),
+        "axis_angle": torch.from_numpy(np.array(arrays["axis_angle"][i], np.float32)),
+        "translation": torch.from_numpy(np.array(arrays["translation"][i], np.float32)),
+        "object_index": torch.tensor(int(arrays["object_index"][i]), dtype=torch.long),
+    }
+    if "coeffs" in arrays:
+        out["coeffs"] = torch.from_numpy(np.array(arrays["coeffs"][i], np.float32))
+    return out
+
+
+class DepthShards(TorchDataset):
+    """A rendered set (folder, ``manifest.json`` or :class:`Manifest`) as a map-style dataset.
+
+    Shards are read lazily, whole, and the last ``cache_shards`` kept; random access across
+    shards is slow, so shuffle with :class:`ShardSampler` (shard order, then within a shard).
+    Items: ``depth`` (1, H, W) float32 metres, ``label``, ``rotation`` (3, 3), ``axis_angle``
+    (3,), ``translation`` (3,), ``object_index`` and, if the set has them, ``coeffs`` (k,).
+    """
+
+    def __init__(self, path, cache_shards: int = 1):
+        self.manifest = Manifest.load(path)
+        self.cache_shards = max(1, int(cache_shards))
+        sizes = np.array([s["n_images"] for s in self.manifest.shards], np.int64)
+        self._starts = np.concatenate([[0], np.cumsum(sizes)])
+        self._cache: OrderedDict[int, dict] = OrderedDict()
+        self.image_objects = self.manifest.image_objects()          #: object position per image
+        self.labels = self.manifest.object_labels[self.image_objects]  #: class index per image
+
+    def __len__(self) -> int:
+        return int(self._starts[-1])
+
+    @property
+    def classes(self) -> tuple[str, ...]:
+        return self.manifest.classes
+
+    @property
+    def object_ids(self) -> list[str]:
+        return self.manifest.object_ids
+
+    def objects(self, indices=None) -> list[str]:
+        """Ids of the objects seen by images ``indices`` (all by default), in position order."""
+        pos = self.image_objects if indices is None else self.image_objects[np.asarray(indices, np.int64)]
+        ids = self.manifest.object_ids
+        return [ids[p] for p in np.unique(pos)]
+
+    def shard_of(self, i) -> np.ndarray:
+        """Shard number of image index(es) ``i``."""
+        return np.searchsorted(self._starts, i, side="right") - 1
+
+    def _shard(self, k: int) -> dict:
+        if k in self._cache:
+            self._cache.move_to_end(k)
+            return self._cache[k]
+        path = self.manifest.root / self.manifest.shards[k]["file"]
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {n: z[n] for n in z.files if n != "mask"}
+        except FileNotFoundError:
+            raise DataError(path, "shard listed in the manifest is missing") from None
+        except Exception as err:
+            raise DataError(path, f"not a readable shard ({type(err).__name__}: {err})") from None
+        self._cache[k] = arrays
+        while len(self._cache) > self.cache_shards:
+            self._cache.popitem(last=False)
+        return arrays
+
+    def __getitem__(self, i) -> dict:
+        n = len(self)
+        i = int(i)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"image {i} out of range for a set of {n}")
+        k = int(self.shard_of(i))
+        return _item(self._shard(k), i - int(self._starts[k]))
+
+    def __getstate__(self):  # DataLoader workers start with an empty cache
+        state = dict(self.__dict__)
+        state["_cache"] = OrderedDict()
+        return state
+
+
+def split_by_object(manifest, val_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Image indices (train, validation) of a rendered set, split by object: all views of an
+    object fall on the same side. Stratified: each class gives ``round(val_fraction * n)`` of
+    its n objects (at least one when it has two or more and val_fraction > 0)."""
+    m = manifest.manifest if isinstance(manifest, DepthShards) else Manifest.load(manifest)
+    if not 0 <= val_fraction < 1:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    labels = m.object_labels
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    val = np.zeros(len(labels), bool)
+    for c in np.unique(labels):
+        objs = np.flatnonzero(labels == c)
+        k = int(round(val_fraction * len(objs)))
+        if val_fraction > 0 and len(objs) >= 2:
+            k = min(max(k, 1), len(objs) - 1)
+        val[rng.permutation(objs)[:k]] = True
+    img_obj = m.image_objects()
+    idx = np.arange(len(img_obj), dtype=np.int64)
+    return idx[~val[img_obj]], idx[val[img_obj]]
+
+
+class ShardSampler(Sampler):
+    """Shuffles a :class:`DepthShards` (or a subset of its image ``indices``) shard-wise: shards in
+    random order, images in random order within each, so each shard is loaded once per epoch.
+    Yields positions into ``indices`` (use with ``torch.utils.data.Subset(data, indices)``), or
+    image indices when ``indices`` is None. ``set_epoch(e)`` changes the order."""
+
+    def __init__(self, data: DepthShards, indices=None, shuffle: bool = True, seed: int = 0):
+        self.indices = np.arange(len(data)) if indices is None else np.asarray(indices, np.int64)
+        shard = data.shard_of(self.indices)
+        self._groups = [np.flatnonzero(shard == k) for k in np.unique(shard)]
+        self.shuffle, self.seed, self.epoch = shuffle, int(seed), 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __iter__(self):
+        if not self.shuffle:
+            yield from (int(i) for g in self._groups for i in g)
+            return
+        rng = np.random.default_rng([self.seed, self.epoch])
+        for g in rng.permutation(len(self._groups)):
+            yield from (int(i) for i in rng.permutation(self._groups[g]))
+
+
+class StreamingDepth(IterableDataset):
+    """The images :func:`render_set` would write, rendered on the fly (for sets too big for disk).
+
+    Same settings, same per-object random streams: at epoch 0 it yields exactly the images of
+    the rendered set (depth quantized to float16 likewise); ``set_epoch(e)`` with e > 0 draws
+    new views from ``default_rng([seed, split_code, position, e])``. Objects are dealt out to
+    DataLoader workers (each with its own Renderer); with ``shuffle`` the object order is a
+    permutation drawn per epoch. Yields the dicts :class:`DepthShards` gives.
+    """
+
+    def __init__(self, dataset, records, split: str, settings: RenderSettings, subspace=None,
+                 shuffle: bool = True):
+        records = list(records)
+        if not records:
+            raise ValueError(f"StreamingDepth: no records for split {split!r}")
+        _split_code(split)
+        if not isinstance(settings, RenderSettings):
+            raise ValueError(f"StreamingDepth: settings must be a RenderSettings, got {type(settings).__name__}")
+        if any(r.split != split for r in records):
+            raise ValueError(f"StreamingDepth: all records must be from split {split!r}")
+        self.classes = tuple(dataset.classes)
+        self.records = records
+        self.labels = [self.classes.index(r.cls) for r in records]
+        self.split, self.settings, self.subspace = split, settings, subspace
+        self.shuffle = bool(shuffle)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return len(self.records) * self.settings.views_per_object
+
+    def object_order(self) -> np.ndarray:
+        """Object positions in this epoch's order (before dealing them to workers)."""
+        n = len(self.records)
+        if not self.shuffle:
+            return np.arange(n)
+        seq = np.random.SeedSequence([self.settings.seed, SPLIT_CODES[self.split], self.epoch], spawn_key=(1,))
+        return np.random.default_rng(seq).permutation(n)
+
+    def __iter__(self):
+        info = get_worker_info()
+        wid, nw = (0, 1) if info is None else (info.id, info.num_workers)
+        mine = self.object_order()[wid::nw]
+        ctx = ObjectViews(self.settings, self.subspace)
+        try:
+            for p in mine:
+                arrays = ctx.views(self.records[p], int(p), self.labels[p], self.split, self.epoch)
+                for v in range(self.settings.views_per_object):
+                    yield _item(arrays, v)
+        finally:
+            ctx.close()

@@ -1,0 +1,245 @@
+"""What the rendered images of one object are: :class:`RenderSettings` and :class:`ObjectViews`.
+
+:class:`RenderSettings` holds everything besides the objects that decides a rendered image
+(image size, views per object, view sampler, object size and distance, backend, noise, seed).
+:class:`ObjectViews` turns an object and the settings into its labelled depth images, the same
+for a written set (:func:`hbeo.render.renderset.render_set`), an on-the-fly one
+(:class:`hbeo.render.datasets.StreamingDepth`) and evaluation
+(:func:`hbeo.reproduction.evaluate.evaluate_model`).
+
+Arrays of one object (n = views per object; shard layout, see :mod:`hbeo.render.renderset`)
+    ``depth`` float16 (n, H, W), metres, 0 = no object; ``mask`` bool (n, H, W); ``label``,
+    ``object_index``, ``view`` int64 (n,); ``object_id`` str (n,); ``rotation`` float32
+    (n, 3, 3) and ``axis_angle`` float32 (n, 3), the pose R (object -> camera,
+    :mod:`hbeo.conventions`); ``translation`` float32 (n, 3), metres; with a subspace,
+    ``coeffs`` float32 (n, k).
+
+Determinism
+    Object ``p`` of a split's record list draws its views (and sensor noise) from
+    ``np.random.default_rng([seed, split_code, p])`` (split_code 0 = train, 1 = test;
+    :func:`object_rng`), so its images depend on nothing else.
+
+Imports the foundation, :mod:`hbeo.data.gridset` and :mod:`hbeo.render` (poses, renderer, noise).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, is_dataclass
+
+import numpy as np
+
+from hbeo import config
+from hbeo import conventions as C
+from hbeo.errors import DataError
+from hbeo.render.noise import SensorNoise
+from hbeo.render.poses import SAMPLERS, ViewSampler
+from hbeo.rotations import matrix_to_axis_angle
+
+BACKENDS = ("auto", "pyrender", "embree")
+SPLIT_CODES = {"train": 0, "test": 1}
+
+
+# --------------------------------------------------------------------------- settings
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Everything that decides the rendered images (besides the objects themselves).
+
+    image_size: (width, height) pixels; the camera is :meth:`Intrinsics.kinect` at that size.
+    views_per_object: images per object. sampler: ``"so3"`` (uniform rotations) or
+    ``"upright"``. object_size: longest side of every object, metres. distance: range of the
+    object centre's depth, metres. shift: largest offset of the object centre from the
+    optical axis, as a fraction of its depth. elevation_deg: camera elevation range of the
+    upright sampler. backend: ``"auto"``, ``"pyrender"`` or ``"embree"``. noise: apply
+    :class:`hbeo.render.noise.SensorNoise`. seed: the set's seed (a non-negative integer).
+    """
+
+    image_size: tuple[int, int] = (80, 60)
+    views_per_object: int = 2
+    sampler: str = "so3"
+    object_size: float = 1.0
+    distance: tuple[float, float] = (1.4, 2.0)
+    shift: float = 0.05
+    elevation_deg: tuple[float, float] = (10.0, 50.0)
+    backend: str = "auto"
+    noise: bool = False
+    seed: int = 0
+
+    def __post_init__(self):
+        def pair(name, conv):
+            v = getattr(self, name)
+            try:
+                v = tuple(conv(x) for x in v)
+            except (TypeError, ValueError):
+                raise ValueError(f"RenderSettings.{name} must be a pair of numbers, got {v!r}") from None
+            if len(v) != 2:
+                raise ValueError(f"RenderSettings.{name} must be a pair, got {v!r}")
+            object.__setattr__(self, name, v)
+            return v
+
+        w, h = pair("image_size", lambda x: _as_int(x, "RenderSettings.image_size"))
+        if w < 1 or h < 1:
+            raise ValueError(f"RenderSettings.image_size must be positive, got {w}x{h}")
+        object.__setattr__(self, "views_per_object", _as_int(self.views_per_object, "RenderSettings.views_per_object"))
+        if self.views_per_object < 1:
+            raise ValueError(f"RenderSettings.views_per_object must be >= 1, got {self.views_per_object}")
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"unknown sampler {self.sampler!r}; expected one of {', '.join(SAMPLERS)}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown render backend {self.backend!r}; expected one of {', '.join(BACKENDS)}")
+        object.__setattr__(self, "object_size", float(self.object_size))
+        object.__setattr__(self, "shift", float(self.shift))
+        if not (math.isfinite(self.object_size) and self.object_size > 0):
+            raise ValueError(f"RenderSettings.object_size must be > 0 metres, got {self.object_size}")
+        if not (math.isfinite(self.shift) and self.shift >= 0):
+            raise ValueError(f"RenderSettings.shift must be >= 0, got {self.shift}")
+        pair("distance", float)
+        lo, hi = pair("elevation_deg", float)
+        if not (-90 <= lo <= hi <= 90):
+            raise ValueError(f"RenderSettings.elevation_deg must satisfy -90 <= min <= max <= 90, got {(lo, hi)}")
+        if not isinstance(self.noise, (bool, np.bool_)):
+            raise ValueError(f"RenderSettings.noise must be True or False, got {self.noise!r}")
+        object.__setattr__(self, "noise", bool(self.noise))
+        object.__setattr__(self, "seed", _as_int(self.seed, "RenderSettings.seed"))
+        if self.seed < 0:
+            raise ValueError(f"RenderSettings.seed must be a non-negative integer, got {self.seed}")
+        self.view_sampler  # noqa: B018  (ViewSampler checks the distance range against the size)
+
+    @property
+    def intrinsics(self) -> C.Intrinsics:
+        return C.Intrinsics.kinect(*self.image_size)
+
+    @property
+    def view_sampler(self) -> ViewSampler:
+        return ViewSampler(sampler=self.sampler, elevation_deg=self.elevation_deg, distance=self.distance,
+                           shift=self.shift, object_size=self.object_size)
+
+    @classmethod
+    def from_profile(cls, profile, **overrides) -> "RenderSettings":
+        """Image size and views per object from a run profile (name or :class:`~hbeo.config.Profile`);
+        keyword arguments override any field (``None`` values are ignored)."""
+        prof = config.get_profile(profile)
+        kw = {"image_size": tuple(prof.image_size), "views_per_object": prof.views_per_object}
+        kw.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**kw)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RenderSettings":
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def _as_int(v, name="value") -> int:
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float, np.floating)) \
+            or float(v) != int(v):
+        raise ValueError(f"{name} must be an integer, got {v!r}")
+    return int(v)
+
+
+def object_rng(seed: int, split: str, position: int, epoch: int = 0) -> np.random.Generator:
+    """The random stream of the object at ``position`` of a split's record list:
+    ``default_rng([seed, split_code, position])``, with the epoch appended when it is not 0."""
+    key = [int(seed), SPLIT_CODES[split], int(position)]
+    return np.random.default_rng(key + [int(epoch)] if epoch else key)
+
+
+def _split_code(split: str) -> int:
+    try:
+        return SPLIT_CODES[split]
+    except KeyError:
+        raise ValueError(f"unknown split {split!r}; expected one of {', '.join(SPLIT_CODES)}") from None
+
+
+# --------------------------------------------------------------------------- rendering one object
+
+def _record_name(record) -> str:
+    return f"{record.split}/{record.cls}/{record.id}"
+
+
+def _noise_description(noise) -> dict | None:
+    if noise is None:
+        return None
+    params = asdict(noise) if is_dataclass(noise) else {"repr": repr(noise)}
+    return {"model": type(noise).__name__, **params}
+
+
+class ObjectViews:
+    """All views of one object at a time, with one Renderer per process (opened lazily): the one
+    place that turns an object and the settings into labelled depth images (for :func:`render_set`,
+    :class:`hbeo.render.datasets.StreamingDepth` and :func:`hbeo.reproduction.evaluate.evaluate_model`)."""
+
+    def __init__(self, settings: RenderSettings, subspace=None):
+        from hbeo.render import renderer as render
+        self.render = render
+        self.settings = settings
+        self.subspace = subspace
+        self.intrinsics = settings.intrinsics
+        self.noise = SensorNoise() if settings.noise else None
+        self.renderer = None
+        self._coeffs: dict[tuple, np.ndarray] = {}
+
+    @property
+    def backend(self) -> str:
+        return self.renderer.backend if self.renderer is not None else self.settings.backend
+
+    def open(self):
+        if self.renderer is None:
+            self.renderer = self.render.Renderer(self.intrinsics, backend=self.settings.backend)
+        return self
+
+    def close(self):
+        if self.renderer is not None:
+            try:
+                self.renderer.close()
+            finally:
+                self.renderer = None
+
+    def coeffs(self, record) -> np.ndarray:
+        key = (record.split, record.cls, record.id)
+        if key not in self._coeffs:
+            from hbeo.data.gridset import record_grid       # raises DataError naming the object
+            self._coeffs[key] = np.asarray(self.subspace.project(record_grid(record)[None])[0], np.float32)
+        return self._coeffs[key]
+
+    def views(self, record, position: int, label: int, split: str, epoch: int = 0) -> dict:
+        """The arrays of all views of one object (shard layout, mask still unpacked)."""
+        s = self.settings
+        rng = object_rng(s.seed, split, position, epoch)
+        R, t = s.view_sampler.sample(s.views_per_object, rng)
+        try:
+            mesh = self.render.record_mesh(record, object_size=s.object_size)
+        except Exception as err:
+            raise DataError(record.path or _record_name(record),
+                            f"cannot render object {_record_name(record)}: no usable mesh "
+                            f"({type(err).__name__}: {err})") from err
+        self.open()
+        try:
+            depth = np.asarray(self.renderer.render_many(mesh, R, t), np.float32)
+        except Exception as err:
+            raise DataError(record.path or _record_name(record),
+                            f"rendering object {_record_name(record)} failed ({type(err).__name__}: {err})") from err
+        n, (w, h) = s.views_per_object, s.image_size
+        if depth.shape != (n, h, w):
+            raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(n, h, w)}")
+        if self.noise is not None:
+            depth = np.asarray(self.noise.apply(depth, self.intrinsics, rng), np.float32)
+        depth = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16)
+        depth[~(depth > 0)] = 0                      # 0 = no object, never negative
+        out = {
+            "depth": depth,
+            "mask": depth > 0,
+            "label": np.full(n, label, np.int64),
+            "object_index": np.full(n, position, np.int64),
+            "object_id": np.full(n, str(record.id)),
+            "view": np.arange(n, dtype=np.int64),
+            "rotation": R.astype(np.float32),
+            "axis_angle": matrix_to_axis_angle(R).astype(np.float32),
+            "translation": t.astype(np.float32),
+        }
+        if self.subspace is not None:
+            out["coeffs"] = np.repeat(self.coeffs(record)[None], n, axis=0)
+        return out

@@ -1,0 +1,81 @@
+"""Running the numbered notebooks (``notebooks/NN_name.ipynb``) with papermill into a run folder.
+
+:func:`run_notebooks` executes them in order with the parameters ``profile``, ``dataset`` and
+``out_dir``; each executed copy goes to :meth:`hbeo.rundir.RunDir.notebook`, and the run's
+manifest (:mod:`hbeo.reproduction.provenance`) gets its wall time. :func:`preflight` fails in
+seconds, with what to do, what would otherwise fail hours later.
+
+May import: foundation, data, and the other reproduction modules (papermill and torch lazily).
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from hbeo import config
+from hbeo.reproduction.provenance import write_manifest
+from hbeo.rundir import RunDir
+
+NOTEBOOKS = config.REPO_ROOT / "notebooks"
+
+
+def notebooks(only=None) -> list[Path]:
+    """The numbered notebooks (``NN_name.ipynb``) in order, optionally filtered by name prefix."""
+    nbs = sorted(p for p in NOTEBOOKS.glob("[0-9][0-9]_*.ipynb"))
+    if only:
+        nbs = [p for p in nbs if any(p.name.startswith(o) for o in only)]
+    return nbs
+
+
+def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=None, only=None) -> list[Path]:
+    """Execute notebooks in order with parameters ``profile``, ``dataset``, ``out_dir``.
+
+    Each executed copy is written into the run folder under the notebook's name; a progress line
+    per notebook says what runs and how long it took; the run's ``manifest.json`` is updated after
+    each. The first failing notebook stops the run (papermill raises, and the failing copy shows
+    where). Returns the executed copies.
+    """
+    import papermill as pm
+    preflight(profile, dataset)
+    run = RunDir.for_run(profile, dataset, out_dir)
+    nbs = notebooks(only)
+    done = []
+    t_all = time.perf_counter()
+    for k, nb in enumerate(nbs, 1):
+        target = run.notebook(nb.stem)
+        print(f"[hbeo {k}/{len(nbs)}] {nb.name} (profile={profile}, dataset={dataset}) -> {target}", flush=True)
+        t0 = time.perf_counter()
+        pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS),
+                            parameters={"profile": profile, "dataset": dataset, "out_dir": str(run.path)},
+                            progress_bar=False)
+        sec = time.perf_counter() - t0
+        write_manifest(run, profile, dataset, {nb.stem: round(sec, 1)})
+        print(f"[hbeo {k}/{len(nbs)}] {nb.name} done in {sec / 60:.1f} min "
+              f"(total {(time.perf_counter() - t_all) / 60:.1f} min)", flush=True)
+        done.append(target)
+    return done
+
+
+def preflight(profile: str, dataset: str) -> None:
+    """Fail in seconds, with what to do, instead of hours later: the profile must exist, the dataset
+    must be readable (``modelnet10`` is downloaded first when missing; without a network that fails
+    with the downloader's message), and a profile that ``needs_gpu`` (``full``) needs CUDA unless
+    ``HBEO_ALLOW_CPU=1``."""
+    from hbeo.data import datasets
+    from hbeo.errors import HBEOError, MissingDataError
+    prof = config.get_profile(profile)
+    if prof.needs_gpu and os.environ.get("HBEO_ALLOW_CPU") != "1":
+        import torch
+        if not torch.cuda.is_available():
+            raise HBEOError(f"the {prof.name} profile trains the paper-sized network on millions of "
+                            f"{prof.image_size[0]}x{prof.image_size[1]} images and needs a CUDA GPU; none is visible "
+                            f"to torch (install the CUDA build of torch, or set HBEO_ALLOW_CPU=1 to run it on the "
+                            f"CPU anyway: days)")
+    try:
+        datasets.get_dataset(dataset, profile=prof)
+    except MissingDataError:
+        if dataset != "modelnet10":
+            raise
+        print("[hbeo] ModelNet10 meshes missing: downloading (about 0.5 GB)", flush=True)
+        datasets.get_dataset(dataset, profile=prof, download=True)

@@ -1,0 +1,93 @@
+"""Provenance of a run: the run folder's ``manifest.json`` (:attr:`hbeo.rundir.RunDir.manifest`).
+
+It records the profile and its settings, the dataset, the git commit (and whether the working tree
+had uncommitted changes), package versions, this machine's hardware (:func:`hardware`), the seeds,
+the wall time of every notebook run so far and the command line. Written atomically; each update
+merges the wall times into those already recorded.
+
+May import: foundation and :mod:`hbeo.reproduction.protocol` (torch only to describe the hardware).
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+
+from hbeo import __version__
+from hbeo import config
+from hbeo.reproduction.protocol import SEED
+from hbeo.rundir import RunDir
+from hbeo.storage import atomic_text
+
+#: The packages whose versions a manifest records (beside Python and hbeo).
+PACKAGES = ("numpy", "scipy", "torch", "trimesh", "scikit-learn", "scikit-image", "pandas", "matplotlib",
+            "embreex", "pyrender", "papermill")
+
+
+def _git(*args) -> str | None:
+    try:
+        out = subprocess.run(["git", *args], cwd=config.REPO_ROOT, capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def versions() -> dict:
+    """Python, hbeo and :data:`PACKAGES` versions (None for a package that is not installed)."""
+    from importlib import metadata
+    out = {"python": platform.python_version(), "hbeo": __version__}
+    for n in PACKAGES:
+        try:
+            out[n] = metadata.version(n)
+        except metadata.PackageNotFoundError:
+            out[n] = None
+    return out
+
+
+def hardware() -> dict:
+    """CPU model, cores, memory (GiB) and GPU of this machine, and torch's thread count."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = None
+    try:
+        mem = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30, 1)
+    except (ValueError, OSError, AttributeError):
+        pass
+    gpu = None
+    try:
+        import torch
+        if torch.cuda.is_available():
+            gpu = torch.cuda.get_device_name(0)
+        threads = torch.get_num_threads()
+    except Exception:   # noqa: BLE001 (torch missing or broken: provenance must still be written)
+        threads = None
+    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": mem, "gpu": gpu, "torch_threads": threads,
+            "platform": platform.platform()}
+
+
+def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None) -> dict:
+    """Create or update the run's ``manifest.json`` (atomically); ``wall_s`` {notebook: seconds} is
+    merged into the wall times already there. ``run``: a RunDir or a path. Returns the manifest."""
+    path = RunDir.of(run).manifest
+    old = json.loads(path.read_text()) if path.exists() else {}
+    commit = _git("rev-parse", "HEAD")
+    dirty = _git("status", "--porcelain", "--untracked-files=no")
+    m = {"profile": profile, "dataset": dataset, "profile_settings": config.get_profile(profile).to_dict(),
+         "git_commit": commit, "git_dirty": bool(dirty) if dirty is not None else None,
+         "versions": versions(), "hardware": hardware(), "seeds": {"training": SEED, "evaluation": SEED,
+                                                                    "rendering": SEED},
+         "wall_time_s": {**old.get("wall_time_s", {}), **(wall_s or {})},
+         "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": " ".join(sys.argv)}
+    m["wall_time_total_s"] = round(sum(m["wall_time_s"].values()), 1)
+    atomic_text(path, json.dumps(m, indent=1))
+    return m

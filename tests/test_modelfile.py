@@ -1,0 +1,385 @@
+"""Model files (hbeo.model.modelfile): round trips of HBEO and VoxCNN models, every malformed file
+refused with one DataError line naming it, files carrying pickled code refused without running it
+(library and CLI), and the conversion of the old torch-pickle format."""
+import io
+import json
+import pickle
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+import safetensors.torch
+import torch
+
+from hbeo.baselines.voxcnn import VoxCNN, VoxCNNBaseline, VoxCNNConfig
+from hbeo.conventions import Intrinsics
+from hbeo.errors import DataError
+from hbeo.model import modelfile as MF
+from hbeo.model.inference import HBEO
+from hbeo.model.network import HBEONet, NetConfig
+from hbeo.subspace.basis import ObjectSubspace
+
+K = Intrinsics.kinect(32, 24)
+
+
+@pytest.fixture(scope="module")
+def hbeo_model():
+    rng = np.random.default_rng(0)
+    grids = np.zeros((8, 30, 30, 30), bool)
+    for i, g in enumerate(grids):                      # boxes of varied size, two classes
+        a, b = 8 + i % 4, 14 + i
+        g[a:30 - a, 10:20, a:b] = True
+    sub = ObjectSubspace(n_components=2).fit(grids, np.arange(8) % 2, ("chair", "table"), progress=False)
+    torch.manual_seed(0)
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
+                            fc=(8, 8, 8)))
+    with torch.no_grad():
+        net.coeff_head.bias.copy_(torch.from_numpy(sub.project(grids).mean(0)))
+    return HBEO(net, sub, K, sub.classes_, {"ref_distance": 1.7, "coeff_mean": rng.normal(size=sub.dim_),
+                                            "coeff_std": np.ones(sub.dim_), "profile": "ci"})
+
+
+@pytest.fixture(scope="module")
+def vox_model():
+    torch.manual_seed(0)
+    return VoxCNNBaseline(VoxCNN(VoxCNNConfig(channels=(2, 2, 2), n_classes=3, bottleneck=4)), ("a", "b", "c"),
+                          {"profile": "ci", "final": {"epoch": 1, "iou": 0.25}})
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, hbeo_model, vox_model):
+    d = tmp_path_factory.mktemp("models")
+    return {"hbeo": hbeo_model.save(d / "model.hbeo"), "voxcnn": vox_model.save(d / "voxcnn.hbeo")}
+
+
+LOADERS = {"hbeo": HBEO.load, "voxcnn": VoxCNNBaseline.load}
+
+
+def depth_images():
+    d = np.zeros((3, K.height, K.width))
+    for i, z in enumerate((1.5, 1.7, 2.1)):
+        d[i, 6 + i: 16, 9: 20 + i] = z
+    return d
+
+
+def members(path) -> dict:
+    with zipfile.ZipFile(path) as z:
+        return {n: z.read(n) for n in z.namelist()}
+
+
+def rewrite(src, dst, replace=None, drop=(), compress=zipfile.ZIP_STORED):
+    """``src``'s members into a new zip ``dst``, some replaced (name -> bytes, new names appended) or dropped."""
+    m = {**members(src), **(replace or {})}
+    with zipfile.ZipFile(dst, "w", compress) as z:
+        for name, data in m.items():
+            if name not in drop:
+                z.writestr(name, data)
+    return dst
+
+
+def edit_meta(src, dst, fn):
+    meta = json.loads(members(src)["meta.json"])
+    fn(meta)
+    return rewrite(src, dst, {"meta.json": json.dumps(meta).encode()})
+
+
+def edit_weights(src, dst, fn):
+    w = safetensors.torch.load(members(src)["weights.safetensors"])
+    fn(w)
+    return rewrite(src, dst, {"weights.safetensors": safetensors.torch.save(w)})
+
+
+# ------------------------------------------------------------------ round trips
+
+def test_hbeo_round_trip_is_exact(hbeo_model, files):
+    path = files["hbeo"]
+    assert zipfile.ZipFile(path).namelist() == ["meta.json", "weights.safetensors", "subspace.npz"]
+    back = HBEO.load(path)
+    a, b = hbeo_model.predict(depth_images(), K), back.predict(depth_images(), K)
+    for f in ("probabilities", "rotation", "translation", "coeffs", "grids"):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert back.classes == hbeo_model.classes and back.intrinsics == K and back.net.cfg == hbeo_model.net.cfg
+    assert back.settings["ref_distance"] == 1.7
+    assert np.array_equal(back.settings["coeff_mean"], hbeo_model.settings["coeff_mean"])
+    meta = json.loads(members(path)["meta.json"])
+    assert (meta["format"], meta["format_version"], meta["kind"]) == ("hbeo-model", 2, "hbeo")
+    assert np.array_equal(back.subspace.basis_, hbeo_model.subspace.basis_)
+
+
+def test_writing_is_deterministic(hbeo_model, files, tmp_path):
+    again = members(hbeo_model.save(tmp_path / "again.hbeo"))
+    first = members(files["hbeo"])
+    assert again["meta.json"] == first["meta.json"] and again["weights.safetensors"] == first["weights.safetensors"]
+
+
+def test_voxcnn_round_trip_is_exact(vox_model, files):
+    back = VoxCNNBaseline.load(files["voxcnn"])
+    assert zipfile.ZipFile(files["voxcnn"]).namelist() == ["meta.json", "weights.safetensors"]
+    assert back.classes == vox_model.classes and back.net.cfg == vox_model.net.cfg
+    assert back.settings["final"] == {"epoch": 1, "iou": 0.25}
+    rng = np.random.default_rng(1)
+    f = rng.random((3, 30, 30, 30)) < 0.1
+    k = f | (rng.random((3, 30, 30, 30)) < 0.3)
+    for a, b in zip(vox_model.predict_partial(f, k), back.predict_partial(f, k)):
+        assert np.array_equal(a, b)
+
+
+def test_nan_weights_are_not_written(vox_model, tmp_path):
+    net = VoxCNN(vox_model.net.cfg)
+    with torch.no_grad():
+        net.class_head[1].bias[0] = float("nan")
+    with pytest.raises(ValueError, match="class_head.1.bias holds NaN"):
+        VoxCNNBaseline(net, vox_model.classes).save(tmp_path / "nan.hbeo")
+    assert not (tmp_path / "nan.hbeo").exists()
+
+
+# ------------------------------------------------------------------ malformed files
+
+def _nan_weight(w):
+    w[next(k for k in w if k.endswith("weight"))][0] = float("nan")
+
+
+def _nan_basis(src, dst):
+    sub = ObjectSubspace.load(io.BytesIO(members(src)["subspace.npz"]))
+    sub.basis_ = sub.basis_.copy()
+    sub.basis_[0, 0] = np.nan
+    buf = io.BytesIO()
+    sub.save(buf)
+    return rewrite(src, dst, {"subspace.npz": buf.getvalue()})
+
+
+def _write(dst, data: bytes):
+    dst.write_bytes(data)
+    return dst
+
+
+def _npz_bytes() -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, a=np.zeros(3))
+    return buf.getvalue()
+
+
+def _flip_byte(src, dst):
+    data = bytearray(src.read_bytes())
+    data[len(data) // 2] ^= 0xFF                   # inside weights.safetensors or subspace.npz
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+MALFORMED = {
+    # name: (kinds it applies to, make(src, dst) -> dst, expected problem)
+    "missing": (("hbeo", "voxcnn"), lambda s, d: d, "no such model file"),
+    "junk": (("hbeo", "voxcnn"), lambda s, d: _write(d, b"junk"), "not a readable hbeo model file"),
+    "truncated": (("hbeo", "voxcnn"), lambda s, d: _write(d, s.read_bytes()[:len(s.read_bytes()) // 2]),
+                  "not a readable hbeo model file"),
+    "corrupt byte": (("hbeo", "voxcnn"), _flip_byte, "not a readable hbeo model file"),
+    "npz container": (("hbeo", "voxcnn"), lambda s, d: _write(d, _npz_bytes()), "not an hbeo model file"),
+    "meta not json": (("hbeo", "voxcnn"), lambda s, d: rewrite(s, d, {"meta.json": b"{net_cfg"}), "is not JSON"),
+    "meta NaN": (("hbeo", "voxcnn"), lambda s, d: rewrite(s, d, {"meta.json": members(s)["meta.json"].replace(
+        b'"settings": {', b'"settings": {"x": NaN, ', 1)}), "is not JSON"),
+    "meta not a dict": (("hbeo", "voxcnn"), lambda s, d: rewrite(s, d, {"meta.json": b"[]"}), "not an hbeo model"),
+    "format 99": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.update(format_version=99)),
+                  "model format 99"),
+    "no net_cfg": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.pop("net_cfg")), 'lacks "net_cfg"'),
+    "no classes": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.pop("classes")), 'lacks "classes"'),
+    "no settings": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.pop("settings")),
+                    'lacks "settings"'),
+    "no intrinsics": (("hbeo",), lambda s, d: edit_meta(s, d, lambda m: m.pop("intrinsics")), 'lacks "intrinsics"'),
+    "bad intrinsics": (("hbeo",), lambda s, d: edit_meta(s, d, lambda m: m["intrinsics"].update(fx="65")),
+                       '"intrinsics" must hold'),
+    "settings a list": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.update(settings=[])),
+                        '"settings" must be a dict'),
+    "unknown key": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.update(code="x")),
+                    "unknown keys code"),
+    "class count": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m["classes"].append("zz")),
+                    "class names for a network with"),
+    "unknown kind": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.update(kind="beo")),
+                     "unknown kind 'beo'"),
+    "bad net_cfg": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m["net_cfg"].update(fizz=1)),
+                    "net_cfg builds no network"),
+    "other net_cfg": (("hbeo", "voxcnn"), lambda s, d: edit_meta(
+        s, d, lambda m: m["net_cfg"].update(fc=[8, 8, 9]) if "fc" in m["net_cfg"]
+        else m["net_cfg"].update(bottleneck=5)), "does not match net_cfg"),
+    "missing tensor": (("hbeo", "voxcnn"), lambda s, d: edit_weights(s, d, lambda w: w.pop(sorted(w)[0])),
+                       "does not match net_cfg: missing"),
+    "extra tensor": (("hbeo", "voxcnn"), lambda s, d: edit_weights(s, d, lambda w: w.update(x=torch.zeros(2))),
+                     "does not match net_cfg: unexpected x"),
+    "tensor shape": (("hbeo", "voxcnn"), lambda s, d: edit_weights(
+        s, d, lambda w: w.update({sorted(w)[0]: torch.zeros(1, 2, 3)})), "does not match net_cfg"),
+    "tensor dtype": (("hbeo", "voxcnn"), lambda s, d: edit_weights(
+        s, d, lambda w: w.update({k: w[k].double() for k in sorted(w)[:1]})), "float64"),
+    "NaN weight": (("hbeo", "voxcnn"), lambda s, d: edit_weights(s, d, _nan_weight), "holds NaN"),
+    "weights not safetensors": (("hbeo", "voxcnn"), lambda s, d: rewrite(s, d, {"weights.safetensors": b"\0" * 64}),
+                                "not a readable safetensors"),
+    "NaN subspace": (("hbeo",), _nan_basis, "subspace.npz: basis holds NaN"),
+    "subspace not npz": (("hbeo",), lambda s, d: rewrite(s, d, {"subspace.npz": b"PK\3\4junk"}),
+                         "subspace.npz is not a readable subspace"),
+    "no subspace": (("hbeo",), lambda s, d: rewrite(s, d, drop=("subspace.npz",)), "must hold exactly"),
+    "extra member": (("hbeo", "voxcnn"), lambda s, d: rewrite(s, d, {"run.py": b"print(1)"}), "must hold exactly"),
+    "compressed": (("hbeo", "voxcnn"), lambda s, d: rewrite(s, d, compress=zipfile.ZIP_DEFLATED),
+                   "compressed member"),
+}
+
+
+@pytest.mark.parametrize("kind", ["hbeo", "voxcnn"])
+@pytest.mark.parametrize("case", list(MALFORMED))
+def test_malformed_files_give_one_line_naming_the_file(files, tmp_path, kind, case):
+    kinds, make, problem = MALFORMED[case]
+    if kind not in kinds:
+        pytest.skip(f"{case} concerns {kinds} files only")
+    bad = make(files[kind], tmp_path / f"bad_{case.replace(' ', '_')}.hbeo")
+    with pytest.raises(DataError) as err:
+        LOADERS[kind](bad)
+    msg = str(err.value)
+    assert msg.startswith(f"{bad}: ") and problem in msg and "\n" not in msg, msg
+
+
+def test_the_other_kind_is_refused(files):
+    with pytest.raises(DataError, match=r"voxcnn\.hbeo: holds a VoxCNN baseline .* not an HBEO model"):
+        HBEO.load(files["voxcnn"])
+    with pytest.raises(DataError, match=r"model\.hbeo: holds an HBEO model, not a VoxCNN"):
+        VoxCNNBaseline.load(files["hbeo"])
+
+
+# ------------------------------------------------------------------ files carrying code
+
+class Payload:
+    """Unpickling this creates ``marker`` (stands in for any code a model file could carry)."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "hbeo", *args], capture_output=True, text=True)
+
+
+@pytest.fixture
+def payload(tmp_path):
+    """(marker path, raw pickle bytes, torch.save bytes); checks the payload does run when unpickled."""
+    marker = tmp_path / "MARKER"
+    raw = pickle.dumps(Payload(marker))
+    pickle.loads(raw)                                    # the payload works: it creates the marker...
+    assert marker.exists()
+    marker.unlink()                                      # ...which every test below must not see again
+    buf = io.BytesIO()
+    torch.save({"format_version": 1, "net_cfg": Payload(marker), "state_dict": {}}, buf)
+    return marker, raw, buf.getvalue()
+
+
+def test_a_torch_pickle_is_refused_without_running_it(payload, tmp_path):
+    marker, _, blob = payload
+    crafted = tmp_path / "crafted.hbeo"
+    crafted.write_bytes(blob)
+    for load in (HBEO.load, VoxCNNBaseline.load):
+        with pytest.raises(DataError, match=r"crafted\.hbeo: old model file format.*python -m hbeo convert-model"):
+            load(crafted)
+    with pytest.raises(DataError, match=r"crafted\.hbeo: not an old hbeo model file that can be read without "
+                                        r"running code.*GLOBAL io.open was not an allowed global by default\)$"):
+        MF.convert_legacy(crafted, tmp_path / "new.hbeo")
+    assert not marker.exists() and not (tmp_path / "new.hbeo").exists()
+    d = tmp_path / "d.npy"
+    np.save(d, np.full((24, 32), 1.7))
+    out = run_cli("predict", "--model", str(crafted), "--depth", str(d), "--intrinsics", "30,30,16,12",
+                  "--out", str(tmp_path / "r.json"))
+    assert out.returncode == 2 and out.stderr.strip().count("\n") == 0, out.stderr
+    assert str(crafted) in out.stderr and "python -m hbeo convert-model" in out.stderr
+    out = run_cli("convert-model", str(crafted), str(tmp_path / "new.hbeo"))
+    assert out.returncode == 2 and out.stderr.strip().count("\n") == 0 and str(crafted) in out.stderr, out.stderr
+    assert not marker.exists() and not (tmp_path / "r.json").exists() and not (tmp_path / "new.hbeo").exists()
+
+
+@pytest.mark.parametrize("kind", ["hbeo", "voxcnn"])
+def test_a_pickle_under_any_member_name_is_refused_without_running_it(files, payload, tmp_path, kind):
+    marker, raw, blob = payload
+    for member in MF.MEMBERS[kind]:
+        for what, data in (("pickle", raw), ("torch", blob)):
+            crafted = rewrite(files[kind], tmp_path / f"{what}_{member}.hbeo", {member: data})
+            with pytest.raises(DataError) as err:
+                LOADERS[kind](crafted)
+            assert str(err.value).startswith(f"{crafted}: ") and "\n" not in str(err.value)
+            assert not marker.exists(), (member, what)
+    if kind == "hbeo":                  # and through the command line, one member each
+        d = tmp_path / "d.npy"
+        np.save(d, np.full((24, 32), 1.7))
+        for member in MF.MEMBERS[kind]:
+            crafted = tmp_path / f"pickle_{member}.hbeo"
+            out = run_cli("predict", "--model", str(crafted), "--depth", str(d), "--intrinsics", "30,30,16,12",
+                          "--out", str(tmp_path / "r.json"))
+            assert out.returncode == 2 and out.stderr.strip().count("\n") == 0, out.stderr
+            assert str(crafted) in out.stderr and not marker.exists()
+
+
+# ------------------------------------------------------------------ the old format
+
+def legacy_hbeo(model: HBEO, path):
+    """A file exactly as hbeo's old HBEO.save wrote it (torch.save of a dict, format 1)."""
+    buf = io.BytesIO()
+    model.subspace.save(buf)
+    torch.save({"format_version": 1, "hbeo_version": "0.1.0", "net_cfg": model.net.cfg.to_dict(),
+                "state_dict": model.net.state_dict(), "subspace": buf.getvalue(),
+                "intrinsics": model.intrinsics.as_tuple(), "classes": list(model.classes),
+                "settings": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in model.settings.items()}},
+               path)
+    return path
+
+
+def legacy_voxcnn(model: VoxCNNBaseline, path):
+    """A file exactly as the old VoxCNNBaseline.save wrote it."""
+    torch.save({"format_version": 1, "kind": "hbeo-voxcnn", "hbeo_version": "0.1.0",
+                "net_cfg": model.net.cfg.to_dict(), "state_dict": model.net.state_dict(),
+                "classes": list(model.classes), "settings": model.settings}, path)
+    return path
+
+
+def test_old_hbeo_file_is_refused_then_converted_in_place(hbeo_model, tmp_path):
+    old = legacy_hbeo(hbeo_model, tmp_path / "model.hbeo")
+    with pytest.raises(DataError, match=r"model\.hbeo: old model file format.*convert-model"):
+        HBEO.load(old)
+    d = tmp_path / "d.npy"
+    np.save(d, depth_images()[1])
+    args = ("predict", "--model", str(old), "--depth", str(d), "--intrinsics", "30,30,16,12")
+    out = run_cli(*args, "--out", str(tmp_path / "r.json"))
+    assert out.returncode == 2 and "python -m hbeo convert-model" in out.stderr, out.stderr
+    assert out.stderr.strip().count("\n") == 0
+    out = run_cli("convert-model", str(old), str(old))
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.npy", "model.hbeo"]       # no temporary left
+    back = HBEO.load(old)
+    meta = json.loads(members(old)["meta.json"])
+    assert meta["converted_from"] == {"format_version": 1, "hbeo_version": "0.1.0"}
+    a, b = hbeo_model.predict(depth_images(), K), back.predict(depth_images(), K)
+    assert all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("probabilities", "rotation", "coeffs", "grids"))
+    assert run_cli(*args, "--out", str(tmp_path / "r.json")).returncode == 0
+    again = run_cli("convert-model", str(old), str(tmp_path / "x.hbeo"))
+    assert again.returncode == 2 and "already in the current model file format" in again.stderr
+
+
+def test_old_voxcnn_file_is_converted(vox_model, tmp_path):
+    old = legacy_voxcnn(vox_model, tmp_path / "voxcnn.pt")
+    with pytest.raises(DataError, match=r"voxcnn\.pt: old model file format"):
+        VoxCNNBaseline.load(old)
+    kind, new = MF.convert_legacy(old, tmp_path / "voxcnn.hbeo")
+    assert kind == "voxcnn" and old.exists()
+    back = VoxCNNBaseline.load(new)
+    f = np.random.default_rng(2).random((2, 30, 30, 30)) < 0.2
+    for a, b in zip(vox_model.predict_partial(f, f), back.predict_partial(f, f)):
+        assert np.array_equal(a, b)
+
+
+def test_conversion_stops_when_the_check_fails(hbeo_model, tmp_path):
+    old = legacy_hbeo(hbeo_model, tmp_path / "model.hbeo")
+    before = old.read_bytes()
+
+    def check(legacy, converted):
+        assert converted.is_file() and converted != old
+        raise DataError(converted, "predictions differ")
+
+    with pytest.raises(DataError, match="predictions differ"):
+        MF.convert_legacy(old, old, check=check)
+    assert old.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["model.hbeo"]

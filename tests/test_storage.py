@@ -1,0 +1,41 @@
+import hashlib
+import logging
+
+import numpy as np
+import pytest
+
+from hbeo.storage import pack_bits, read_sidecar, sidecar_path, unpack_bits, verify_sidecar, write_sidecar
+
+
+def test_pack_bits_round_trip_grids_and_masks():
+    rng = np.random.default_rng(0)
+    grids = rng.random((3, 30, 30, 30)) < 0.3
+    packed = pack_bits(grids)
+    assert packed.shape == (3, 3375) and packed.dtype == np.uint8
+    assert np.array_equal(unpack_bits(packed), grids)                  # default: 30^3 grids
+    masks = rng.random((2, 7, 5)) < 0.5                                 # 35 bits: a padded last byte
+    assert np.array_equal(unpack_bits(pack_bits(masks), (7, 5)), masks)
+    assert pack_bits(np.zeros((0, 30, 30, 30), bool)).shape == (0, 3375)
+
+
+def test_pack_bits_bad_shapes():
+    with pytest.raises(ValueError, match=r"pack_bits: .*got shape \(8,\)"):
+        pack_bits(np.zeros(8, bool))
+    with pytest.raises(ValueError, match=r"unpack_bits: .*\(N, 5\).*\(7, 5\).*\(2, 4\)"):
+        unpack_bits(np.zeros((2, 4), np.uint8), (7, 5))
+
+
+def test_sidecar_write_read_verify(tmp_path, caplog):
+    f = tmp_path / "shard.npz"
+    f.write_bytes(b"hello")
+    want = hashlib.sha256(b"hello").hexdigest()
+    assert read_sidecar(f) is None and verify_sidecar(f) is None        # no record yet
+    assert write_sidecar(f) == want
+    assert sidecar_path(f).read_text() == f"{want}  shard.npz\n"        # sha256sum format
+    assert read_sidecar(f) == want and verify_sidecar(f) == want
+    f.write_bytes(b"hellO")                                             # damaged file
+    assert verify_sidecar(f) is None
+    sidecar_path(f).write_text("not a digest\n")
+    with caplog.at_level(logging.WARNING, logger="hbeo.storage"):
+        assert read_sidecar(f) is None
+    assert "unreadable checksum record" in caplog.text
