@@ -25,6 +25,7 @@ import logging
 import os
 import re
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -139,31 +140,56 @@ def unpack_bits(packed, shape=GRID_SHAPE) -> np.ndarray:
     return np.unpackbits(p, axis=1, count=count).astype(bool).reshape((len(p),) + shape)
 
 
+def _describe(path) -> str | None:
+    """A file's name for messages: the path, or an open file's ``name`` (None for an anonymous buffer)."""
+    if hasattr(path, "read") or hasattr(path, "write"):
+        name = getattr(path, "name", None)
+        return name if isinstance(name, (str, os.PathLike)) else None
+    return os.fspath(path)
+
+
+def _write_zip_npz(f, arrays: dict, compressed: bool) -> None:
+    """The .npz layout numpy reads, with fixed zip timestamps: the same arrays give the same bytes."""
+    method = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+    with zipfile.ZipFile(f, "w", compression=method) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as fid:
+                np.lib.format.write_array(fid, np.asanyarray(arr), allow_pickle=False)
+
+
 def write_npz(path, meta: dict | None, compressed: bool = False, **arrays) -> Path:
-    """Write ``arrays`` and ``meta`` (JSON-able dict; None: no meta entry) to ``path`` atomically."""
+    """Write ``arrays`` and ``meta`` (JSON-able dict; None: no meta entry) to ``path`` atomically, or
+    into an open binary file. Deterministic: the same arrays and meta give the same bytes."""
     if meta is not None:
         arrays["meta"] = np.array(json.dumps(meta))
+    if hasattr(path, "write"):
+        _write_zip_npz(path, arrays, compressed)
+        return path
     with atomic_file(path) as f:
-        (np.savez_compressed if compressed else np.savez)(f, **arrays)
+        _write_zip_npz(f, arrays, compressed)
     return Path(path)
 
 
 def read_npz(path, keys, what: str, format_version: int, hint: str = "") -> tuple[dict, dict]:
-    """(meta, {key: array}) from a file written by :func:`write_npz`.
+    """(meta, {key: array}) from a file (path or open binary file) written by :func:`write_npz`.
 
     DataError naming the file when it is missing, unreadable, lacks one of ``keys``, or holds
     another ``format_version`` than this hbeo reads (``hint`` is appended, e.g. "; rebuild it").
     """
-    path = Path(path)
+    name = _describe(path)
+    src = path if hasattr(path, "read") else Path(path)
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with np.load(src, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in keys}
     except FileNotFoundError:
-        raise DataError(path, f"no such {what} file") from None
+        raise DataError(name, f"no such {what} file") from None
     except Exception as err:
-        raise DataError(path, f"not a readable {what} file ({type(err).__name__}: {err})") from None
+        raise DataError(name, f"not a readable {what} file ({type(err).__name__}: {err})") from None
     got = meta.get("format_version") if isinstance(meta, dict) else None
     if got != format_version:
-        raise DataError(path, f"{what} format {got}, this hbeo reads {format_version}{hint}")
+        raise DataError(name, f"{what} format {got}, this hbeo reads {format_version}{hint}")
     return meta, arrays

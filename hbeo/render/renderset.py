@@ -36,7 +36,6 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-import zipfile
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +48,7 @@ from hbeo.errors import DataError
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
                                _split_code)
-from hbeo.storage import atomic_file, atomic_text, pack_bits, sha256_file, verify_sidecar, write_sidecar
+from hbeo.storage import atomic_text, pack_bits, sha256_file, verify_sidecar, write_npz, write_sidecar
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
@@ -63,16 +62,9 @@ SHARD_KEYS = ("depth", "mask", "label", "object_index", "object_id", "view", "ro
 # --------------------------------------------------------------------------- shard files
 
 def _write_npz(path: Path, arrays: dict) -> tuple[str, int]:
-    """Compressed .npz with fixed zip timestamps (same arrays -> same bytes), written atomically.
-    Returns (sha256, size)."""
-    with atomic_file(path) as f:
-        with zipfile.ZipFile(f, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for name, arr in arrays.items():
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-                info.compress_type = zipfile.ZIP_DEFLATED
-                info.external_attr = 0o644 << 16
-                with zf.open(info, "w", force_zip64=True) as fid:
-                    np.lib.format.write_array(fid, np.asanyarray(arr), allow_pickle=False)
+    """A compressed shard, written atomically with fixed bytes (:func:`hbeo.storage.write_npz`);
+    returns (sha256, size)."""
+    write_npz(path, None, compressed=True, **arrays)
     return sha256_file(path), path.stat().st_size
 
 

@@ -18,9 +18,7 @@ of W, or as I - (unknown rows)^T (unknown rows) when fewer voxels are unknown.
 from __future__ import annotations
 
 import hashlib
-import json
 import warnings
-from pathlib import Path
 
 import numpy as np
 from scipy import linalg
@@ -28,8 +26,7 @@ from scipy.linalg import blas
 from tqdm.auto import tqdm
 
 from hbeo import conventions as C
-from hbeo.storage import atomic_file
-from hbeo.errors import DataError
+from hbeo.storage import read_npz, write_npz
 from hbeo.subspace.vbpca import VBPCA
 
 FORMAT_VERSION = 1
@@ -267,30 +264,15 @@ class ObjectSubspace:
         ratios = np.concatenate([self.class_variance_ratio_[c] for c in self.classes_])
         spectra = np.concatenate([self.class_spectrum_[c] for c in self.classes_])
         meta["spectrum_sizes"] = [len(self.class_spectrum_[c]) for c in self.classes_]
-        arrays = dict(basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios, spectra=spectra,
-                      singular_values=self.singular_values_, meta=np.array(json.dumps(meta)))
-        if hasattr(path, "write"):
-            np.savez(path, **arrays)
-            return path
-        with atomic_file(path) as f:
-            np.savez(f, **arrays)
-        return Path(path)
+        return write_npz(path, meta, basis=self.basis_, means=self.class_means_, components=comps, ratios=ratios,
+                         spectra=spectra, singular_values=self.singular_values_)
 
     @classmethod
     def load(cls, path) -> "ObjectSubspace":
         """Read a file (path or open binary file) written by :meth:`save` (DataError naming the
         file if it is not one)."""
-        path = path if hasattr(path, "read") else Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                arrays = {k: z[k] for k in ("basis", "means", "components", "ratios", "spectra", "singular_values")}
-        except FileNotFoundError:
-            raise DataError(path, "no such subspace file") from None
-        except Exception as err:
-            raise DataError(path, f"not a readable subspace file ({type(err).__name__}: {err})") from None
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise DataError(path, f"subspace format {meta.get('format_version')}, this hbeo reads {FORMAT_VERSION}")
+        meta, arrays = read_npz(path, ("basis", "means", "components", "ratios", "spectra", "singular_values"),
+                                "subspace", FORMAT_VERSION)
         self = cls(**meta["params"])
         self.classes_ = tuple(meta["classes"])
         self.n_components_ = meta["n_components"]
