@@ -1,7 +1,8 @@
 """Run profiles and path settings: the one place that sizes a run and finds data.
 
 Profiles
-    ``ci``   a few objects per class, tiny images, one epoch: the notebooks under nbval.
+    ``ci``   6 training objects per class, 80x60 images, a tiny network trained 8 epochs: the
+             notebooks under nbval and the tests (minutes).
     ``cpu``  a scaled-down reproduction that finishes on a 2-core machine.
     ``full`` paper scale (GPU): all objects, 320x240 images, many views.
 
