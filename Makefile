@@ -1,13 +1,14 @@
 # hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
 #   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile)
+#   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PROFILE ?= cpu
 DATASET ?= procedural
 
-.PHONY: setup reproduce test test-unit test-notebooks benchmark clean-results
+.PHONY: setup reproduce test test-unit test-fast test-notebooks benchmark clean-results
 
 setup: $(VENV)/.installed
 
@@ -22,6 +23,9 @@ test: setup test-unit test-notebooks
 
 test-unit: setup
 	$(PY) -m pytest -q tests
+
+test-fast: setup
+	$(PY) -m pytest -q -m "not slow" tests
 
 test-notebooks: setup
 	$(PY) -m pytest -q --nbval-lax notebooks

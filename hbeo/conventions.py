@@ -40,8 +40,8 @@ Rendering scale
 Grid coordinates
     Continuous grid coordinates ``u`` in [0, 30)^3: voxel (i, j, k) covers
     [i, i+1) x [j, j+1) x [k, k+1); its centre is (i+0.5, j+0.5, k+0.5).
-    ``u = (x - center) * scale + GRID_CENTER`` with ``scale = OBJECT_VOXELS /
-    longest_side`` (voxels per object unit) and ``GRID_CENTER`` = 15.
+    ``u = (x - center) * scale + RESOLUTION / 2`` with ``scale = OBJECT_VOXELS /
+    longest_side`` (voxels per object unit) and ``RESOLUTION / 2`` = 15.
 
 Imports numpy only; nothing from hbeo.
 """
@@ -61,9 +61,7 @@ SPLITS: tuple[str, ...] = ("train", "test")
 RESOLUTION = 30          #: voxels per side of the grid
 OBJECT_VOXELS = 24       #: voxels spanned by the longest side of the object
 MARGIN = (RESOLUTION - OBJECT_VOXELS) // 2   #: empty voxels each side of the longest axis (3)
-GRID_CENTER = RESOLUTION / 2.0               #: grid coordinate of the object's bbox centre (15.0)
 UP_AXIS = 2              #: +z is up in the canonical frame
-GRID_DTYPE = np.bool_    #: occupancy grids are boolean in memory, uint8 on disk
 
 
 def class_index(name: str) -> int:

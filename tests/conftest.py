@@ -1,7 +1,33 @@
+"""Shared fixtures: the real-data samples, and the ``ci`` run built once per session.
+
+The ci run is what ``python -m hbeo train --profile ci --dataset procedural --epochs 1`` builds,
+in one temporary :class:`~hbeo.rundir.RunDir`, stage by stage and only as far as a test asks:
+
+    ci_run          the (empty) run folder, a RunDir
+    ci_grids        {"train", "test"}: GridSets of both splits (60 + 30 objects; read-only arrays)
+    ci_subspace     the run's ObjectSubspace (60 % of each class's variance)
+    ci_render       the rendered training set (480 views, 80x60), its Manifest
+    ci_render_test  the rendered test set (240 views), its Manifest
+    ci_model        the model file trained by the CLI (one epoch, in a child process, so no
+                    training threads stay in this one), its path
+
+Each stage builds on the previous one, so a test that needs only grids does not train. The folder
+is shared: tests read it and never write into it; a test that writes (evaluate fits baselines
+beside the model, the 3-D CNN caches its partial grids) works on a ``copy_run`` copy. Whether
+the folder is still as the stages left it is checked before each stage and at the end.
+"""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from hbeo import config
+
+CI = ("procedural", "ci")                 # dataset, profile of the shared run
 
 
 @pytest.fixture(scope="session")
@@ -25,3 +51,114 @@ def vox30_file():
 def vox30(vox30_file):
     with np.load(vox30_file) as z:
         return {k: z[k] for k in ("X_train", "names_train", "y_train", "classes")}
+
+
+# ----------------------------------------------------------------------------- the shared ci run
+
+class _SharedRun:
+    """The shared run folder and what its stages wrote there (size and mtime of every file)."""
+
+    def __init__(self, path: Path):
+        from hbeo.rundir import RunDir
+        self.run = RunDir(path).create()
+        self.cache = path.parent / (path.name + "_cache")     # voxel cache of this session only
+        self._files = self._state()
+
+    def _state(self) -> dict:
+        root = self.run.path
+        return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns)
+                for p in root.rglob("*") if p.is_file()}
+
+    def check(self) -> None:
+        now = self._state()
+        changed = sorted(k for k in set(now) | set(self._files) if now.get(k) != self._files.get(k))
+        assert not changed, (f"a test wrote into the shared ci run {self.run.path} (copy it with copy_run "
+                             f"first): {', '.join(changed[:5])}")
+
+    def build(self, step):
+        """Run one stage (``step()``) after checking nothing else touched the folder."""
+        self.check()
+        out = step()
+        self._files = self._state()
+        return out
+
+
+@pytest.fixture(scope="session")
+def _ci(tmp_path_factory):
+    shared = _SharedRun(tmp_path_factory.mktemp("ci_shared") / "ci-procedural")
+    yield shared
+    shared.check()                        # fails the session's last test's teardown if one wrote there
+
+
+@pytest.fixture(scope="session")
+def ci_run(_ci):
+    """The shared ci run folder (a RunDir). Read only: copy it with ``copy_run`` to write."""
+    return _ci.run
+
+
+@pytest.fixture(scope="session")
+def ci_grids(_ci):
+    """{"train": GridSet, "test": GridSet} of the ci run (run_gridsets, as ``train`` does),
+    voxelized into a cache of this session's own."""
+    from hbeo.data.gridset import run_gridsets
+
+    def step():
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setenv("HBEO_CACHE", str(_ci.cache))
+            sets = run_gridsets(*CI, _ci.run, progress=False)
+        for gs in sets.values():              # shared by every test: a test that writes into them fails
+            for a in (gs.grids, gs.labels, gs.ids):
+                a.setflags(write=False)
+        return sets
+    return _ci.build(step)
+
+
+@pytest.fixture(scope="session")
+def ci_subspace(_ci, ci_grids):
+    """The ci run's ObjectSubspace, fitted on ``ci_grids["train"]`` and saved in the run."""
+    from hbeo.model.pipeline import ensure_subspace
+    return _ci.build(lambda: ensure_subspace(*CI, _ci.run, progress=False))
+
+
+@pytest.fixture(scope="session")
+def ci_render(_ci, ci_subspace):
+    """The Manifest of the ci run's rendered training set (rendered in spawned workers)."""
+    from hbeo.model.pipeline import ensure_render
+    return _ci.build(lambda: ensure_render(*CI, _ci.run, "train", progress=False))
+
+
+@pytest.fixture(scope="session")
+def ci_render_test(_ci, ci_subspace):
+    """The Manifest of the ci run's rendered test set (``train`` does not render it)."""
+    from hbeo.model.pipeline import ensure_render
+    return _ci.build(lambda: ensure_render(*CI, _ci.run, "test", progress=False))
+
+
+@pytest.fixture(scope="session")
+def ci_model(_ci, ci_render):
+    """Path of the model trained by ``python -m hbeo train --dataset procedural --profile ci
+    --epochs 1`` in the ci run (grids, subspace and rendering are already there and are reused)."""
+    def step():
+        out = subprocess.run([sys.executable, "-m", "hbeo", "train", "--dataset", CI[0], "--profile", CI[1],
+                              "--out", str(_ci.run.path), "--epochs", "1", "--quiet"],
+                             capture_output=True, text=True, env=dict(os.environ, HBEO_CACHE=str(_ci.cache)))
+        assert out.returncode == 0, out.stderr
+        assert "model:" in out.stdout and _ci.run.model.is_file()
+        return _ci.run.model
+    return _ci.build(step)
+
+
+@pytest.fixture(scope="session")
+def copy_run():
+    """``copy_run(run, dest, names=None) -> RunDir``: a private copy of run folder ``run`` at
+    ``dest`` (all of it, or the top-level entries ``names``), for tests that write into a run."""
+    from hbeo.rundir import RunDir
+
+    def copy(run, dest, names=None):
+        src, dest = RunDir.of(run).path, Path(dest)
+        dest.mkdir(parents=True, exist_ok=True)
+        for p in sorted(src.iterdir()):
+            if names is None or p.name in names:
+                (shutil.copytree if p.is_dir() else shutil.copy2)(p, dest / p.name)
+        return RunDir(dest)
+    return copy

@@ -9,7 +9,6 @@ from hbeo.data import datasets
 from hbeo.render import renderer as render
 from hbeo.baselines.beo import BEO, grid_spacing, so3_grid
 from hbeo.errors import DataError
-from hbeo.data.gridset import record_grid
 from hbeo.subspace.partial import depth_to_partial_many
 from hbeo.render.poses import ViewSampler
 from hbeo.render.renderer import Renderer, record_mesh
@@ -22,13 +21,15 @@ K = C.Intrinsics.kinect(160, 120)
 
 
 @pytest.fixture(scope="module")
-def data():
+def data(ci_grids, ci_subspace):
+    """The ci run's records, training grids and labels, and its subspace (conftest)."""
     ds = datasets.get_dataset("procedural", profile="ci")
     train, test = datasets.select(ds, "train", "ci"), datasets.select(ds, "test", "ci")
-    G = np.stack([record_grid(r) for r in train])
-    L = np.array([ds.classes.index(r.cls) for r in train])
-    sub = ObjectSubspace(variance=0.6).fit(G, L, ds.classes, progress=False)
-    return ds, train, test, G, L, sub
+    gs = ci_grids["train"]
+    assert list(gs.ids) == [r.id for r in train] and gs.classes == ds.classes
+    G, L = gs.grids, np.asarray(gs.labels)
+    assert list(L) == [ds.classes.index(r.cls) for r in train]
+    return ds, train, test, G, L, ci_subspace
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,8 @@
 import subprocess
 import sys
 
+import pytest
+
 
 def run(*args):
     return subprocess.run([sys.executable, "-m", "hbeo", *args], capture_output=True, text=True)
@@ -38,6 +40,7 @@ def test_voxelize_writes_grids(tmp_path, sample_dir):
     assert RunDir(tmp_path).status()["grids_test"]
 
 
+@pytest.mark.slow
 def test_subspace_command_fits_and_reports(tmp_path):
     import json
     out = run("subspace", "--dataset", "procedural", "--profile", "ci", "--out", str(tmp_path))
@@ -61,11 +64,11 @@ def test_report_writes_the_reproduction_from_a_run(tmp_path):
     assert text.startswith("# Reproduction") and "*(missing: 05_table1.md" in text
 
 
+@pytest.mark.slow
 def test_reproduce_refuses_a_gpu_profile_without_cuda(tmp_path):
     import os
     import torch
     if torch.cuda.is_available():
-        import pytest
         pytest.skip("a GPU is visible: the full profile would start")
     env = {k: v for k, v in os.environ.items() if k != "HBEO_ALLOW_CPU"}
     out = subprocess.run([sys.executable, "-m", "hbeo", "reproduce", "--profile", "full", "--out", str(tmp_path)],

@@ -1,4 +1,7 @@
-"""The model commands end to end on the ci profile: train -> predict -> evaluate."""
+"""The model commands end to end on the ci profile: train -> predict -> evaluate.
+
+The trained model is the session's (conftest ``ci_model``); every test here depends on it or
+trains another run, so the module is marked slow."""
 import json
 import subprocess
 import sys
@@ -7,21 +10,18 @@ import numpy as np
 import pytest
 from PIL import Image
 
+pytestmark = pytest.mark.slow
+
 
 def run(*args, env=None):
     return subprocess.run([sys.executable, "-m", "hbeo", *args], capture_output=True, text=True, env=env)
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    import os
-    run_dir = tmp_path_factory.mktemp("run")
-    env = dict(os.environ, HBEO_CACHE=str(run_dir / "cache"))
-    out = run("train", "--dataset", "procedural", "--profile", "ci", "--out", str(run_dir), "--epochs", "1",
-              "--quiet", env=env)
-    assert out.returncode == 0, out.stderr
-    assert "model:" in out.stdout and (run_dir / "model.hbeo").exists()
-    return run_dir
+def trained(ci_model, copy_run, tmp_path_factory):
+    """This module's copy of the shared ci run with its trained model: evaluate fits and trains the
+    baselines beside the model, i.e. writes into the run."""
+    return copy_run(ci_model.parent, tmp_path_factory.mktemp("run")).path
 
 
 def depth_png(path, w=80, h=60):
@@ -121,8 +121,10 @@ def _numbers(m: dict) -> dict:
 
 
 def test_two_runs_with_the_same_seed_give_the_same_numbers(trained, tmp_path):
-    """A second ci run (grids, subspace, rendering, training, evaluation) in a fresh folder gives the
-    same metrics for HBEO and BEO as the first, to the last digit (runtimes aside)."""
+    """A second ci run (grids, subspace, rendering, training, evaluation), all by the CLI in a fresh
+    folder with a fresh voxel cache, gives the same metrics for HBEO and BEO as the session's run
+    (its stages built by the package functions, its model by the CLI), to the last digit (runtimes
+    aside)."""
     import os
     second = tmp_path / "run2"
     env = dict(os.environ, HBEO_CACHE=str(tmp_path / "cache"))

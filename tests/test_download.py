@@ -335,6 +335,7 @@ def test_fetch_modelnet10_flat_archive_with_pinned_hash(server, tmp_path):
     assert (classes / "chair" / "train").is_dir()
 
 
+@pytest.mark.slow
 def test_fetch_modelnet10_refuses_a_file_that_is_not_the_pinned_one(server, tmp_path):
     with pytest.raises(DownloadError, match="does not match"):
         fetch_modelnet10(tmp_path, url=server.url(), progress=False, expected_sha256="0" * 64)

@@ -18,12 +18,15 @@ YAWS = np.radians([20.0, 140.0, 260.0])
 
 
 @pytest.fixture(scope="module")
-def data():
+def data(ci_grids):
+    """The ci run's records and its training grids and labels (conftest)."""
     ds = datasets.get_dataset("procedural", profile="ci")
     train, test = datasets.select(ds, "train", "ci"), datasets.select(ds, "test", "ci")
-    grids = np.stack([gridset.record_grid(r) for r in train])
+    gs = ci_grids["train"]
+    assert list(gs.ids) == [r.id for r in train]
     labels = np.array([C.class_index(r.cls) for r in train])
-    return {"train": train, "test": test, "grids": grids, "labels": labels}
+    assert np.array_equal(np.asarray(gs.labels), labels)
+    return {"train": train, "test": test, "grids": gs.grids, "labels": labels}
 
 
 @pytest.fixture(scope="module")

@@ -5,23 +5,23 @@ import numpy as np
 import pytest
 import torch
 
-from hbeo.data import datasets
 from hbeo.conventions import Intrinsics
 from hbeo.errors import DataError
-from hbeo.data.gridset import build_gridset
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, NetConfig
-from hbeo.subspace.basis import ObjectSubspace
+
+
+N_CLASSES = 10                                 #: the ci run's classes (ModelNet10's)
 
 
 @pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    ds = datasets.ProceduralDataset(n_train=6, n_test=0, seed=1, classes=("chair", "table"))
-    gs = build_gridset(ds, ds.records("train"), "train", cache=tmp_path_factory.mktemp("c"), progress=False)
-    sub = ObjectSubspace(variance=0.6).fit(gs.grids, gs.labels, gs.classes, progress=False)
+def model(ci_grids, ci_subspace):
+    """An untrained small network with the ci run's subspace and classes (conftest)."""
+    gs, sub = ci_grids["train"], ci_subspace
+    assert len(gs.classes) == N_CLASSES
     torch.manual_seed(0)
     K = Intrinsics.kinect(32, 24)
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=N_CLASSES, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
                             fc=(8, 8, 8)))
     with torch.no_grad():                      # make the mean-shape coefficient come out non-empty
         net.coeff_head.bias.copy_(torch.from_numpy(sub.project(gs.grids).mean(0)))
@@ -37,7 +37,7 @@ def blob_depth(K, z=1.7):
 def test_predict_shapes_and_frames(model):
     K_user = Intrinsics(500.0, 500.0, 300.0, 220.0, 640, 480)
     p = model.predict(np.stack([blob_depth(K_user), blob_depth(K_user, 2.5)]), K_user)
-    assert p.probabilities.shape == (2, 2) and np.allclose(p.probabilities.sum(1), 1)
+    assert p.probabilities.shape == (2, N_CLASSES) and np.allclose(p.probabilities.sum(1), 1)
     assert p.rotation.shape == (2, 3, 3) and np.allclose(p.rotation @ p.rotation.transpose(0, 2, 1), np.eye(3), atol=1e-6)
     assert p.grids.shape == (2, 30, 30, 30) and p.grids.dtype == bool
     assert p.translation[1, 2] > p.translation[0, 2] and p.scale[1] > p.scale[0]
@@ -69,7 +69,7 @@ def test_bad_model_files(tmp_path):
 
 def test_mismatched_parts_are_refused(model):
     with pytest.raises(ValueError, match="coefficients"):
-        HBEO(HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=3, conv_channels=(4, 4, 4, 4),
+        HBEO(HBEONet(NetConfig(image_size=(32, 24), n_classes=N_CLASSES, n_coeffs=3, conv_channels=(4, 4, 4, 4),
                                fc=(8, 8, 8))), model.subspace, model.intrinsics, model.classes)
 
 
@@ -83,8 +83,8 @@ def test_to_mesh_places_the_completed_shape_in_the_camera_frame(model):
 
 
 def test_rotation_bins_model_round_trip(model, tmp_path):
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=model.subspace.dim_, conv_channels=(4, 4, 4, 4),
-                            fc=(8, 8, 8), rotation="bins", rotation_bins=256))
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=N_CLASSES, n_coeffs=model.subspace.dim_,
+                            conv_channels=(4, 4, 4, 4), fc=(8, 8, 8), rotation="bins", rotation_bins=256))
     m = HBEO(net, model.subspace, model.intrinsics, model.classes, model.settings)
     back = HBEO.load(m.save(tmp_path / "bins.hbeo"))
     K = Intrinsics.kinect(64, 48)
@@ -137,8 +137,8 @@ class _RollReader(torch.nn.Module):
 
 
 def _bins_model(model, n=2048):
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=model.subspace.dim_, conv_channels=(4, 4, 4, 4),
-                            fc=(8, 8, 8), rotation="bins", rotation_bins=n))
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=N_CLASSES, n_coeffs=model.subspace.dim_,
+                            conv_channels=(4, 4, 4, 4), fc=(8, 8, 8), rotation="bins", rotation_bins=n))
     return HBEO(net, model.subspace, model.intrinsics, model.classes, {"recenter": False})
 
 
@@ -165,7 +165,7 @@ def test_roll_averaging_turns_each_rolls_distribution_back(model):
     for rolls in (1, 3, 4):
         p = m.predict(d, K, rolls=rolls)
         assert geodesic_deg(p.rotation, want)[0] < 8, rolls
-        assert np.allclose(p.probabilities, 0.5)
+        assert np.allclose(p.probabilities, 1 / N_CLASSES)     # constant logits: uniform
     with pytest.raises(ValueError, match="rotation-bins"):
         model.predict(d, K, rolls=2)
     with pytest.raises(ValueError, match="positive integer"):

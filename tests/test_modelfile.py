@@ -24,6 +24,9 @@ from hbeo.subspace.basis import ObjectSubspace
 K = Intrinsics.kinect(32, 24)
 
 
+# Small synthetic models, not the session's ci run (conftest): the format tests save, rewrite and
+# load them dozens of times, and need no trained network (the ci model takes ~10 s to train).
+
 @pytest.fixture(scope="module")
 def hbeo_model():
     rng = np.random.default_rng(0)
@@ -272,6 +275,7 @@ def payload(tmp_path):
     return marker, raw, buf.getvalue()
 
 
+@pytest.mark.slow
 def test_a_torch_pickle_is_refused_without_running_it(payload, tmp_path):
     marker, _, blob = payload
     crafted = tmp_path / "crafted.hbeo"
@@ -294,7 +298,7 @@ def test_a_torch_pickle_is_refused_without_running_it(payload, tmp_path):
     assert not marker.exists() and not (tmp_path / "r.json").exists() and not (tmp_path / "new.hbeo").exists()
 
 
-@pytest.mark.parametrize("kind", ["hbeo", "voxcnn"])
+@pytest.mark.parametrize("kind", [pytest.param("hbeo", marks=pytest.mark.slow), "voxcnn"])  # hbeo: + the CLI
 def test_a_pickle_under_any_member_name_is_refused_without_running_it(files, payload, tmp_path, kind):
     marker, raw, blob = payload
     for member in MF.MEMBERS[kind]:
@@ -337,6 +341,7 @@ def legacy_voxcnn(model: VoxCNNBaseline, path):
     return path
 
 
+@pytest.mark.slow
 def test_old_hbeo_file_is_refused_then_converted_in_place(hbeo_model, tmp_path):
     old = legacy_hbeo(hbeo_model, tmp_path / "model.hbeo")
     with pytest.raises(DataError, match=r"model\.hbeo: old model file format.*convert-model"):

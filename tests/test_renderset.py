@@ -30,6 +30,10 @@ SMALL = RenderSettings(image_size=(32, 24), views_per_object=2)
 REPO = Path(__file__).resolve().parent.parent
 
 
+# Not the session's ci run (conftest): these tests count images, shards and views of a set small
+# enough to spell out (6 objects x 2 views of 32x24 in shards of 4 objects, a 1-component subspace)
+# and render it again several ways; the ci set (60 objects x 8 views of 80x60) would take ~10x longer.
+
 @pytest.fixture(scope="module")
 def ds():
     return datasets.ProceduralDataset(n_train=2, n_test=1, seed=3, classes=CLASSES)
@@ -101,6 +105,7 @@ def test_coefficients_are_the_projection_of_the_complete_grid(rendered, ds, subs
         assert np.array_equal(coeffs[2 * i], coeffs[2 * i + 1])
 
 
+@pytest.mark.slow
 def test_identical_bytes_for_any_worker_count_and_rerun_is_a_no_op(ds, tmp_path):
     recs = ds.records("train")
     one = render_set(ds, recs, "train", tmp_path / "w1", SMALL, workers=1, objects_per_shard=2, progress=False)
@@ -116,6 +121,7 @@ def test_identical_bytes_for_any_worker_count_and_rerun_is_a_no_op(ds, tmp_path)
     _same_sets(one, fixed)
 
 
+@pytest.mark.slow
 def test_resume_after_kill_gives_the_uninterrupted_result(tmp_path, capsys):
     out = tmp_path / "run"
     args = [sys.executable, "-m", "hbeo", "render", "--dataset", "procedural", "--profile", "ci",
@@ -211,6 +217,7 @@ def _broken_mesh():
     raise OSError("cannot read broken.off")
 
 
+@pytest.mark.slow
 def test_bad_inputs(ds, tmp_path):
     with pytest.raises(ValueError, match="no records"):
         render_set(ds, [], "train", tmp_path / "a", SMALL)

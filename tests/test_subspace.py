@@ -1,28 +1,36 @@
+"""ObjectSubspace (hbeo.subspace.basis) on the ci run's grids (conftest): the shared basis,
+reconstruction and partial projection of held-out objects, fitting options, the file."""
 import numpy as np
 import pytest
 
-from hbeo.data import datasets
 from hbeo.subspace import metrics
 from hbeo.errors import DataError
-from hbeo.data.gridset import build_gridset
 from hbeo.subspace.basis import ObjectSubspace
 
-CLASSES = ("bed", "chair", "table")
+SOME = ("bed", "chair", "table")       #: the classes of the fitting-option tests (a fit of all ten takes ~1.5 s)
 
 
 @pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    ds = datasets.ProceduralDataset(n_train=12, n_test=3, seed=7, classes=CLASSES)
-    cache = tmp_path_factory.mktemp("cache")
-    tr = build_gridset(ds, ds.records("train"), "train", cache=cache, progress=False)
-    te = build_gridset(ds, ds.records("test"), "test", cache=cache, progress=False)
-    return tr, te
+def data(ci_grids):
+    """(train, test) GridSets of the ci run: 6 + 3 procedural objects of each of the ten classes."""
+    return ci_grids["train"], ci_grids["test"]
 
 
 @pytest.fixture(scope="module")
-def fitted(data):
+def fitted(data, ci_subspace):
+    """The ci run's subspace: fitted on ``data``'s training grids at 60 % variance per class."""
     tr, _ = data
-    return ObjectSubspace(variance=0.6).fit(tr.grids, tr.labels, tr.classes, progress=False)
+    assert ci_subspace.classes_ == tr.classes and ci_subspace.variance == 0.6
+    return ci_subspace
+
+
+@pytest.fixture(scope="module")
+def some(data):
+    """(grids, labels) of the training objects of the classes ``SOME``, labels into ``SOME``."""
+    tr, _ = data
+    names = np.array(tr.classes)[tr.labels]
+    keep = np.isin(names, SOME)
+    return tr.grids[keep], np.array([SOME.index(c) for c in names[keep]])
 
 
 def test_shared_basis_is_orthonormal_and_spans_components_and_means(fitted):
@@ -30,9 +38,9 @@ def test_shared_basis_is_orthonormal_and_spans_components_and_means(fitted):
     W = S.basis_.astype(np.float64)
     assert W.shape == (27000, S.dim_)
     assert np.allclose(W.T @ W, np.eye(S.dim_), atol=1e-4)
-    assert S.dim_ == sum(S.n_components_.values()) + len(CLASSES)   # generic data: full rank
-    for c in CLASSES:
-        M = np.vstack([S.class_components_[c], S.class_means_[CLASSES.index(c)]]).astype(np.float64)
+    assert len(S.classes_) == 10 and S.dim_ == sum(S.n_components_.values()) + 10   # generic data: full rank
+    for i, c in enumerate(S.classes_):
+        M = np.vstack([S.class_components_[c], S.class_means_[i]]).astype(np.float64)
         resid = M - (M @ W) @ W.T
         assert np.abs(resid).max() < 1e-3 * np.abs(M).max()
         assert np.cumsum(S.class_variance_ratio_[c])[-1] >= 0.6
@@ -88,18 +96,16 @@ def test_lasso_matches_lstsq_without_penalty_and_sparsifies_with_it(fitted, data
     assert (small == 0).sum() > (plain == 0).sum()
 
 
-def test_fixed_counts_and_shared_dim_target(data):
-    tr, _ = data
-    fixed = ObjectSubspace(n_components={"bed": 2, "chair": 3, "table": 1}).fit(
-        tr.grids, tr.labels, tr.classes, progress=False)
+def test_fixed_counts_and_shared_dim_target(some):
+    G, L = some
+    fixed = ObjectSubspace(n_components={"bed": 2, "chair": 3, "table": 1}).fit(G, L, SOME, progress=False)
     assert fixed.n_components_ == {"bed": 2, "chair": 3, "table": 1} and fixed.dim_ == 9
-    target = ObjectSubspace(shared_dim=15).fit(tr.grids, tr.labels, tr.classes, progress=False)
+    target = ObjectSubspace(shared_dim=15).fit(G, L, SOME, progress=False)
     assert target.dim_ >= 15
-    lower = ObjectSubspace(variance=target.variance_used_ - 1e-6).fit(tr.grids, tr.labels, tr.classes,
-                                                                      progress=False)
+    lower = ObjectSubspace(variance=target.variance_used_ - 1e-6).fit(G, L, SOME, progress=False)
     assert lower.dim_ < 15                         # the smallest fraction that reaches the target
     with pytest.raises(ValueError, match="out of reach"):
-        ObjectSubspace(shared_dim=10_000).fit(tr.grids, tr.labels, tr.classes, progress=False)
+        ObjectSubspace(shared_dim=10_000).fit(G, L, SOME, progress=False)
 
 
 def test_save_load_round_trip(fitted, data, tmp_path):
@@ -108,7 +114,7 @@ def test_save_load_round_trip(fitted, data, tmp_path):
     assert back.dim_ == fitted.dim_ and back.fingerprint_ == fitted.fingerprint_
     assert back.n_components_ == fitted.n_components_ and back.classes_ == fitted.classes_
     assert np.array_equal(back.project(te.grids), fitted.project(te.grids))
-    for c in CLASSES:
+    for c in fitted.classes_:
         assert np.array_equal(back.class_components_[c], fitted.class_components_[c])
     (tmp_path / "bad.npz").write_text("nope")
     with pytest.raises(DataError, match=r"bad\.npz"):
@@ -137,16 +143,24 @@ def test_eigen_objects_and_counts_from_spectra(fitted):
     assert np.allclose(moved, 2.0 * std * S.class_components_[c][0], atol=1e-5)
     assert S.counts_at(0.6) == S.n_components_
     f = S.fraction_for_dim(S.dim_ + 3)
-    assert sum(S.counts_at(f).values()) + len(CLASSES) >= S.dim_ + 3 > sum(S.counts_at(f - 1e-6).values()) + len(CLASSES)
+    n = len(S.classes_)
+    assert sum(S.counts_at(f).values()) + n >= S.dim_ + 3 > sum(S.counts_at(f - 1e-6).values()) + n
 
 
-def test_run_gridsets_reads_what_it_wrote(tmp_path, monkeypatch):
+def test_run_gridsets_reads_what_it_wrote(ci_run, ci_grids, monkeypatch, tmp_path):
+    """The session's ci run was built by run_gridsets; a second call reads its files (an empty
+    voxel cache and unchanged files show nothing was voxelized or written) and gives the same sets."""
     from hbeo.data.gridset import run_gridsets
+    assert ci_run.grids("train").exists() and len(ci_grids["test"]) == 30 and len(ci_grids["train"]) == 60
+    stamps = {s: ci_run.grids(s).stat().st_mtime_ns for s in ("train", "test")}
     monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
-    first = run_gridsets("procedural", "ci", tmp_path, progress=False)
-    assert (tmp_path / "grids_train.npz").exists() and len(first["test"]) == 30
-    again = run_gridsets("procedural", "ci", tmp_path, progress=False)
-    assert np.array_equal(first["train"].grids, again["train"].grids)
+    again = run_gridsets("procedural", "ci", ci_run, progress=False)
+    assert not (tmp_path / "cache").exists()
+    assert {s: ci_run.grids(s).stat().st_mtime_ns for s in ("train", "test")} == stamps
+    for s in ("train", "test"):
+        a, b = ci_grids[s], again[s]
+        assert np.array_equal(a.grids, b.grids) and np.array_equal(a.labels, b.labels)
+        assert list(a.ids) == list(b.ids) and a.classes == b.classes
 
 
 def test_reconstruct_equals_the_dense_product(fitted):

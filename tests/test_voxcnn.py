@@ -18,7 +18,7 @@ from hbeo.render.datasets import load_shard
 TEST_EPOCHS = config.get_profile("ci").voxcnn_epochs      #: the ci profile as is (3 epochs, seconds each)
 
 
-# ------------------------------------------------------------------ fixtures (one ci run per session)
+# ------------------------------------------------------------------ fixtures (the session's ci run)
 
 @pytest.fixture(scope="module", autouse=True)
 def one_thread():
@@ -30,15 +30,13 @@ def one_thread():
     torch.set_num_threads(before)
 
 
-@pytest.fixture(scope="session")
-def ci_run(tmp_path_factory):
-    """grids, subspace and rendered train/test sets of the procedural ci run (rendered in spawned
-    workers by render_set, so no renderer stays in this process)."""
-    from hbeo.model.pipeline import ensure_render
-    run = tmp_path_factory.mktemp("voxcnn_run")
-    ensure_render("procedural", "ci", run, progress=False)
-    ensure_render("procedural", "ci", run, split="test", progress=False)
-    return run
+@pytest.fixture(scope="module")
+def ci_run(ci_render, ci_render_test, copy_run, tmp_path_factory):
+    """This module's copy of the session's ci run (grids, subspace, rendered train and test sets;
+    conftest): training the baseline writes its partial grids, checkpoint and model file there.
+    Rendering the sets and training take ~15 s, so every test using this is marked slow."""
+    names = ("grids_train.npz", "grids_test.npz", "subspace.npz", "render_train", "render_test")
+    return copy_run(ci_render.root.parent, tmp_path_factory.mktemp("voxcnn_run"), names).path
 
 
 @pytest.fixture(scope="module")
@@ -112,6 +110,7 @@ def test_space_to_depth_and_input_encoding():
 
 # ------------------------------------------------------------------ the partial training set
 
+@pytest.mark.slow
 def test_partial_training_set(ci_run, pset):
     from hbeo.render.renderset import Manifest
     m = Manifest.load(ci_run / "render_train")
@@ -143,6 +142,7 @@ def test_partial_training_set(ci_run, pset):
 
 # ------------------------------------------------------------------ training and held-out accuracy
 
+@pytest.mark.slow
 def test_trained_baseline_beats_chance_and_empty_completion(ci_run, trained, test_views):
     tv = test_views
     n = len(tv["label"])
@@ -166,6 +166,7 @@ def test_trained_baseline_beats_chance_and_empty_completion(ci_run, trained, tes
     assert list(log.epoch) == list(range(1, TEST_EPOCHS + 1)) and "val_iou" in log and "grids_per_s" in log
 
 
+@pytest.mark.slow
 def test_predict_view(trained, test_views):
     tv = test_views
     for i in (0, 7):
@@ -182,6 +183,7 @@ def test_predict_view(trained, test_views):
     assert empty["probabilities"].shape == (10,)      # no object pixel: an all-unknown input
 
 
+@pytest.mark.slow
 def test_rerun_after_training_resumes_from_checkpoint(ci_run, trained):
     """All epochs are in the checkpoint: a rerun trains nothing and gives the same weights."""
     again = V.train_voxcnn(ci_run, "ci", epochs=TEST_EPOCHS, progress=False)
@@ -191,6 +193,7 @@ def test_rerun_after_training_resumes_from_checkpoint(ci_run, trained):
         V.train_voxcnn(ci_run, "ci", epochs=TEST_EPOCHS + 1, progress=False)
 
 
+@pytest.mark.slow
 def test_interrupted_training_resumes_exactly(tmp_path, pset):
     from torch.utils.data import Subset
     from hbeo.rundir import TRAIN_LOG
@@ -211,13 +214,9 @@ def test_interrupted_training_resumes_exactly(tmp_path, pset):
         train(other, tr, va, tmp_path / "a", tc)
 
 
-def test_interrupted_train_voxcnn_writes_no_model(tmp_path, ci_run, pset):
-    import shutil
-    run = tmp_path / "run"
-    run.mkdir()
-    for name in ("render_train", "grids_train.npz"):
-        src = ci_run / name
-        (shutil.copytree if src.is_dir() else shutil.copy2)(src, run / name)
+@pytest.mark.slow
+def test_interrupted_train_voxcnn_writes_no_model(tmp_path, ci_run, pset, copy_run):
+    run = copy_run(ci_run, tmp_path / "run", ("render_train", "grids_train.npz")).path
     small = config.get_profile("ci", voxcnn_channels=(4, 4, 8), voxcnn_bottleneck=16, voxcnn_views_per_object=1)
     rd = RunDir(run)
     model_file = rd.baseline("voxcnn")
@@ -230,6 +229,7 @@ def test_interrupted_train_voxcnn_writes_no_model(tmp_path, ci_run, pset):
 
 # ------------------------------------------------------------------ the model file
 
+@pytest.mark.slow
 def test_save_load_round_trip(tmp_path, trained, test_views):
     path = trained.save(tmp_path / "m.hbeo")
     back = V.VoxCNNBaseline.load(path)
@@ -240,6 +240,7 @@ def test_save_load_round_trip(tmp_path, trained, test_views):
         assert np.array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_bad_model_files(tmp_path, trained):
     """The baseline's loader on bad files; the format's every case is in tests/test_modelfile.py."""
     import json
