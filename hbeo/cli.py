@@ -156,7 +156,7 @@ def cmd_train(args) -> int:
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
     model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
                             view=view, seed=args.seed, out_name=args.name, progress=not args.quiet, loss=weights,
-                            augment_roll=args.augment_roll)
+                            augment_roll=args.augment_roll, max_steps=args.max_steps)
     print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
           f"{model.subspace.dim_} coefficients)")
     return 0
@@ -318,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     _dataset_arg(p)
     p.add_argument("--out", help="run folder (default: results/PROFILE-DATASET)")
     p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
+    p.add_argument("--max-steps", type=int, help="stop after this many optimizer steps (the schedule ends there)")
     p.add_argument("--views", type=int, help="rendered views per training object (default: the profile's)")
     p.add_argument("--loss-weights", default="1,1,1",
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")

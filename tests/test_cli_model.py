@@ -146,3 +146,16 @@ def test_evaluate_refuses_roll_averaging_for_a_regression_model(trained, tmp_pat
               "--out", str(tmp_path / "m.json"), "--quiet")
     assert out.returncode == 2 and "rotation-bins model" in out.stderr and out.stderr.strip().count("\n") == 0
     assert not (tmp_path / "m.json").exists()
+
+
+def test_train_max_steps_stops_early_and_writes_a_normal_model(trained, tmp_path):
+    from hbeo.model.inference import HBEO
+    from hbeo.rundir import RunDir
+    rd = RunDir(trained)
+    res = run("train", "--dataset", "procedural", "--profile", "ci", "--out", str(trained), "--epochs", "3",
+              "--max-steps", "2", "--name", "model_steps.hbeo", "--quiet")
+    assert res.returncode == 0, res.stderr
+    log = rd.train_log("model_steps.hbeo").read_text().splitlines()
+    header, rows = log[0].split(","), [r.split(",") for r in log[1:]]
+    assert len(rows) == 1 and int(rows[0][header.index("step")]) == 2, log
+    assert HBEO.load(rd.model_file("model_steps.hbeo")).net.n_params() > 0
