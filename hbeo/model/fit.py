@@ -168,12 +168,12 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
 
 def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_angle", normalization: str = "none",
               view: ViewOptions | None = None, val_fraction: float = 0.1, seed: int = 0,
-              out_name: str = "model.hbeo", progress: bool = True,
+              out_name: str | None = None, progress: bool = True,
               loss: LossWeights | None = None, augment_roll: bool = False,
               max_steps: int | None = None) -> tuple[HBEO, Path]:
     """Train on the run's rendered training set with its subspace; writes the model file
-    ``out_name`` (``RunDir.model_file``) into ``run`` (a RunDir or a path) and returns the model
-    and its path. Checkpoints go to ``RunDir.training(out_name)`` (a rerun resumes exactly).
+    ``out_name`` (``RunDir.model_file``; None: the run's default model) into ``run`` (a RunDir or a
+    path) and returns the model and its path. Checkpoints go to ``RunDir.training(out_name)`` (a rerun resumes exactly).
     ``loss``: the weights gamma_c, gamma_o, gamma_p of the paper's loss (default 1, 1, 1).
     ``augment_roll``: roll every training view by a random angle about the optical axis each
     epoch (:mod:`hbeo.model.augment`; exact, for uniform SO(3) views; not in the paper).

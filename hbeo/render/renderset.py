@@ -45,13 +45,14 @@ from tqdm.auto import tqdm
 
 from hbeo import __version__
 from hbeo.errors import DataError
+from hbeo.rundir import RENDER_MANIFEST
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
                                _split_code)
 from hbeo.storage import atomic_text, pack_bits, sha256_file, verify_sidecar, write_npz, write_sidecar
 
 FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
+MANIFEST = RENDER_MANIFEST        #: the set's description, written last (its name is RunDir's)
 PARTIAL = "manifest.partial.json"
 #: Default shard size in images (a 320x240 float16 shard of 1024 images is ~160 MB in memory).
 IMAGES_PER_SHARD = 1024
