@@ -8,6 +8,7 @@ import argparse
 import json
 import sys
 import warnings
+from contextlib import ExitStack
 from pathlib import Path
 
 from hbeo.errors import HBEOError
@@ -52,19 +53,37 @@ def cmd_data(args) -> int:
     return 0
 
 
+def _report_failures(run, step: str, failures: list, total: int, strict: bool, splits) -> int:
+    """A batch's end: its bad items written to the run's failures.json (replacing that step's old
+    ones) and printed to stderr; exit status 2 if there were any and ``--strict``, else 0."""
+    from hbeo.rundir import failure_summary
+    path = run.write_failures(step, failures, splits=splits)
+    if failures:
+        print(failure_summary(failures, total, path), file=sys.stderr)
+    return 2 if (strict and failures) else 0
+
+
 def cmd_voxelize(args) -> int:
     from hbeo import config
     from hbeo.data import datasets
     from hbeo.data.gridset import build_gridset
+    from hbeo.errors import DataError
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
     run = RunDir.for_run(prof.name, args.dataset, args.out)
-    for split in ("train", "test"):
+    splits, failures, total = ("train", "test"), [], 0
+    for split in splits:
         recs = datasets.select(ds, split, prof)
-        gs = build_gridset(ds, recs, split, workers=args.workers or prof.workers)
+        total += len(recs)
+        try:
+            gs = build_gridset(ds, recs, split, workers=args.workers or prof.workers)
+        except DataError as err:            # nothing of the split succeeded: report, then exit 2
+            _report_failures(run, "voxelize", failures + getattr(err, "failures", []), total, True, splits)
+            raise
+        failures += gs.failures
         path = gs.save(run.grids(split))
         print(f"{split}: {len(gs)} grids -> {path}")
-    return 0
+    return _report_failures(run, "voxelize", failures, total, args.strict, splits)
 
 
 def cmd_subspace(args) -> int:
@@ -109,6 +128,7 @@ def cmd_subspace(args) -> int:
 def cmd_render(args) -> int:
     from hbeo import config
     from hbeo.data import datasets
+    from hbeo.errors import DataError
     from hbeo.render.renderset import render_set
     from hbeo.render.views import RenderSettings
     from hbeo.subspace.basis import ObjectSubspace
@@ -120,15 +140,27 @@ def cmd_render(args) -> int:
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler,
                                            noise=args.noise, backend=args.backend, seed=args.seed)
     splits = ("train", "test") if args.split == "both" else (args.split,)
+    failures, total = [], 0
     for split in splits:
         recs = datasets.select(ds, split, prof)
-        m = render_set(ds, recs, split, run.renders(split), settings, subspace=subspace,
-                       workers=args.workers or prof.workers, objects_per_shard=args.objects_per_shard,
-                       progress=not args.quiet)
+        total += len(recs)
+        try:
+            with warnings.catch_warnings(record=True) as caught:   # shards rendered again, and why
+                warnings.simplefilter("always")
+                m = render_set(ds, recs, split, run.renders(split), settings, subspace=subspace,
+                               workers=args.workers or prof.workers, objects_per_shard=args.objects_per_shard,
+                               progress=not args.quiet)
+        except DataError as err:            # nothing of the split could be rendered: report, then exit 2
+            _report_failures(run, "render", failures + getattr(err, "failures", []), total, True, splits)
+            raise
+        finally:
+            for w in caught:
+                print(f"warning: {w.message}", file=sys.stderr)
+        failures += m.failures
         rate = (f"{m.images_per_s:.1f} images/s" if m.images_per_s else "already rendered, 0 new images")
         coeffs = f", coeffs k={m.coeffs_dim}" if m.coeffs_dim else ""
-        print(f"{split}: {m.n_images} images of {len(recs)} objects{coeffs} -> {m.root}  ({rate})")
-    return 0
+        print(f"{split}: {m.n_images} images of {len(recs) - len(m.failures)} objects{coeffs} -> {m.root}  ({rate})")
+    return _report_failures(run, "render", failures, total, args.strict, splits)
 
 
 def _loss_weights(text: str):
@@ -169,23 +201,43 @@ def _write_json(path, obj) -> None:
         json.dump(obj, f, indent=2)
 
 
+#: file types ``predict --mesh`` writes (trimesh's exporters)
+MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
+
+
 def cmd_predict(args) -> int:
-    from hbeo.storage import atomic_file
+    from hbeo.errors import DataError
+    from hbeo.storage import atomic_file, check_outputs
     from hbeo.render.depthio import parse_intrinsics, read_depth, read_mask
     from hbeo.model.inference import HBEO
+    # outputs first: a bad --out/--mesh, or one naming an input, fails before any work
+    check_outputs({"--out": args.out, "--mesh": args.mesh},
+                  {"--depth": args.depth, "--mask": args.mask, "--model": args.model})
+    if args.mesh and Path(args.mesh).suffix.lower() not in MESH_SUFFIXES:
+        raise DataError(args.mesh, f"--mesh: unsupported mesh format; expected {', '.join(MESH_SUFFIXES)}")
     depth = read_depth(args.depth, args.depth_scale)
     K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(args.mask, depth.shape) if args.mask else None
     model = HBEO.load(args.model, precision=args.precision)
-    pred = model.predict(depth, K, mask, rolls=args.rolls)
+    try:
+        pred = model.predict(depth, K, mask, rolls=args.rolls)
+    except DataError as err:              # an input the model cannot see: name the depth file
+        raise DataError(args.depth, err.problem) from None
     mesh = model.to_mesh(pred) if args.mesh else None     # fails before anything is written
     result = {"model": str(args.model), "depth": str(args.depth), "precision": model.precision, "rolls": args.rolls,
               **pred.to_dict(0)}
+    data = None
     if mesh is not None:
-        with atomic_file(args.mesh) as f:
-            mesh.export(f, file_type=Path(args.mesh).suffix.lstrip(".").lower() or "ply")
         result["mesh"] = str(args.mesh)
-    _write_json(args.out, result)
+        data = mesh.export(file_type=Path(args.mesh).suffix.lstrip(".").lower())
+        data = data.encode() if isinstance(data, str) else data
+    # both files are complete in temporary files before either is renamed into place
+    with ExitStack() as files:
+        files.enter_context(atomic_file(args.out, "w")).write(json.dumps(result, indent=2))
+        if data is not None:
+            files.enter_context(atomic_file(args.mesh)).write(data)
+    for w in result["warnings"]:
+        print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     print(f"{result['class']} (p={max(result['probabilities']):.2f}), axis-angle {result['axis_angle']} -> {args.out}")
     return 0
 
@@ -194,6 +246,8 @@ def cmd_evaluate(args) -> int:
     from hbeo.reproduction.evaluate import evaluate_model
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.model.inference import HBEO
+    from hbeo.storage import check_outputs
+    check_outputs({"--out": args.out}, {"--model": args.model})
     pose = check_method(args.method, args.pose)
     model = HBEO.load(args.model, precision=args.precision)
     if args.rolls < 1 or (args.rolls > 1 and model.net.cfg.rotation != "bins"):
@@ -201,6 +255,11 @@ def cmd_evaluate(args) -> int:
                          f"({args.model} has {model.net.cfg.rotation})")
     profile = model.settings.get("profile", "cpu")
     ds = _load_dataset(args.dataset, profile)
+    # before any baseline is fitted or view rendered (evaluate_model checks the same)
+    unknown = sorted({r.cls for r in ds.records(split=args.split, per_class=args.per_class)} - set(model.classes))
+    if unknown:
+        raise HBEOError(f"--dataset {args.dataset}: classes {', '.join(unknown)} are unknown to the model "
+                        f"{args.model} (it knows {', '.join(model.classes)})")
     method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
                                                             progress=not args.quiet)
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
@@ -286,6 +345,8 @@ def build_parser() -> argparse.ArgumentParser:
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
     p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 2 if any object fails (default: skip it, list it in failures.json)")
     p.set_defaults(func=cmd_voxelize)
     p = sub.add_parser("subspace", help="fit the shared VBPCA subspace; print components and completion errors")
     _dataset_arg(p, profile="full")
@@ -313,6 +374,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--objects-per-shard", type=int, default=None,
                    help="objects per shard file (default: about 1024 images per shard)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 2 if any object fails (default: skip it, list it in failures.json)")
     p.set_defaults(func=cmd_render)
     p = sub.add_parser("train", help="train HBEONet (builds grids, subspace and renderings if missing)")
     _dataset_arg(p)

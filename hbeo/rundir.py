@@ -17,21 +17,25 @@ other module and every notebook asks a :class:`RunDir` for a path::
     NN_<name>.png / .csv / .md   reproduction: the notebooks' figures and tables
     NN_<name>.ipynb              reproduction: the executed notebooks
     manifest.json                reproduction: provenance (commit, versions, hardware, wall times)
-    failures.json                any batch step: the items it skipped and why
+    failures.json                batch steps: the objects each left out, ``[{file, reason, step, ...}]``
 
 Complete means "written to the end": every file here is written through a temporary name and
 renamed (:mod:`hbeo.storage`), and a rendered set counts only once its manifest exists, so
 "exists" and "complete" coincide for files, and :meth:`RunDir.status` reports both kinds.
 
-Imports nothing from the pipeline subpackages, so every layer may use it.
+Also owns the record of a batch's bad items (:func:`failure`, :meth:`RunDir.write_failures`,
+:func:`failure_summary`), which every batch step (voxelize, render, evaluate) shares.
+Imports only :mod:`hbeo.config` and :mod:`hbeo.storage`, so every layer may use it.
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 from pathlib import Path
 
 from hbeo import config
+from hbeo.storage import atomic_text
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -43,6 +47,24 @@ DEFAULT_MODEL = f"model{MODEL_SUFFIX}"
 CHECKPOINT = "checkpoint.pt"
 TRAIN_LOG = "train_log.csv"
 RENDER_MANIFEST = "manifest.json"
+
+
+def failure(file, reason: str, step: str, **extra) -> dict:
+    """One bad item of a batch, as ``failures.json`` lists it: ``{"file", "reason", "step", **extra}``
+    (``extra``: ``object``, ``split``, ... as the step knows them)."""
+    return {"file": None if file is None else os.fspath(file), "reason": str(reason), "step": step, **extra}
+
+
+def failure_summary(failures: list[dict], total: int, where=None, limit: int = 20) -> str:
+    """``"3 of 120 objects failed: ... see RUN/failures.json"`` and one line per bad file (at most
+    ``limit``); empty when nothing failed."""
+    if not failures:
+        return ""
+    lines = [f"{len(failures)} of {total} objects failed" + (f"; see {where}" if where else "") + ":"]
+    lines += [f"  {f['file']}: {f['reason']} ({f['step']})" for f in failures[:limit]]
+    if len(failures) > limit:
+        lines.append(f"  ... and {len(failures) - limit} more" + (f" in {where}" if where else ""))
+    return "\n".join(lines)
 
 
 def _check_name(what: str, name: str) -> str:
@@ -180,7 +202,28 @@ class RunDir:
 
     @property
     def failures(self) -> Path:
+        """The bad items of the batch steps (:meth:`write_failures`)."""
         return self.path / "failures.json"
+
+    def read_failures(self) -> list[dict]:
+        """The list in :attr:`failures` ([] when there is none or it is unreadable)."""
+        try:
+            data = json.loads(self.failures.read_text())
+        except (OSError, ValueError):
+            return []
+        return [f for f in data if isinstance(f, dict)] if isinstance(data, list) else []
+
+    def write_failures(self, step: str, failures: list[dict], splits=None) -> Path:
+        """Replace the entries of ``step`` (only those of ``splits`` when given) in :attr:`failures`
+        by ``failures``, atomically; entries of other steps stay. The file is removed once empty."""
+        keep = [f for f in self.read_failures()
+                if f.get("step") != step or (splits is not None and f.get("split") not in splits)]
+        data = keep + [dict(f, step=step) for f in failures]
+        if data:
+            atomic_text(self.failures, json.dumps(data, indent=1))
+        else:
+            self.failures.unlink(missing_ok=True)
+        return self.failures
 
     # --- what is there ---
     def status(self) -> dict[str, bool]:

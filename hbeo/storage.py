@@ -3,7 +3,8 @@
 Owns how the project writes and reads its own data files, so that an interrupted job never
 leaves a file that looks complete, and no file is ever unpickled:
 
-- :func:`atomic_file` / :func:`atomic_text`: write to a temporary name, then rename;
+- :func:`atomic_file` / :func:`atomic_text`: write to a temporary name, then rename (the file gets
+  the user's umask, as a plain ``open`` would give it);
 - :func:`sha256_file`: the content hash used by manifests and sidecars;
 - :func:`write_sidecar` / :func:`read_sidecar` / :func:`verify_sidecar`: a file's sha256 recorded
   beside it in ``<name>.sha256`` (``sha256sum`` format: ``<hex digest>  <name>``), so a later run
@@ -40,16 +41,34 @@ logger = logging.getLogger(__name__)
 GRID_SHAPE = (RESOLUTION,) * 3
 
 
+def current_umask() -> int:
+    """The process's umask, read without changing it where the system tells it (Linux:
+    ``/proc/self/status``); elsewhere set and restored at once (racy only against another thread
+    creating a file in that instant)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_file(path, mode: str = "wb", **kw):
     """Open a temporary file beside ``path``; on a clean exit it is renamed onto ``path``
     (atomic on one file system) after its bytes reach the disk; on an error it is removed.
-    Parent folders are created."""
+    Parent folders are created. The file gets the mode a plain ``open`` would give a new file,
+    0666 less the umask (``mkstemp`` creates it 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, mode, **kw) as f:
+            os.fchmod(f.fileno(), 0o666 & ~current_umask())
             yield f
             f.flush()
             os.fsync(f.fileno())
@@ -193,3 +212,37 @@ def read_npz(path, keys, what: str, format_version: int, hint: str = "") -> tupl
     if got != format_version:
         raise DataError(name, f"{what} format {got}, this hbeo reads {format_version}{hint}")
     return meta, arrays
+
+
+# --------------------------------------------------------------------------- output paths
+
+def check_outputs(outputs: dict, inputs: dict | None = None) -> None:
+    """Check, before any work, that a command can write its output files and will not overwrite
+    one of its inputs. ``outputs`` / ``inputs``: {option name (e.g. ``"--out"``): path or None}.
+
+    DataError naming the option and the file when an output is a folder, its folder is missing
+    or not a folder or not writable, or it is the same file as an input or another output (resolved
+    paths; ``os.path.samefile`` where both exist, so links and hard links count)."""
+    def same(a: Path, b: Path) -> bool:
+        if a.resolve() == b.resolve():
+            return True
+        try:
+            return a.exists() and b.exists() and os.path.samefile(a, b)
+        except OSError:
+            return False
+
+    outs = [(k, Path(v)) for k, v in outputs.items() if v is not None]
+    ins = [(k, Path(v)) for k, v in (inputs or {}).items() if v is not None]
+    for i, (opt, path) in enumerate(outs):
+        parent = path.parent
+        if path.is_dir():
+            raise DataError(path, f"{opt} names a folder; give a file name")
+        if not parent.exists():
+            raise DataError(path, f"{opt}: folder {parent} does not exist")
+        if not parent.is_dir():
+            raise DataError(path, f"{opt}: {parent} is not a folder")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise DataError(path, f"{opt}: no permission to write in folder {parent}")
+        for other, p in ins + outs[:i]:
+            if same(path, p):
+                raise DataError(path, f"{opt} is the same file as {other}; it would be overwritten")

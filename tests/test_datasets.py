@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 from hbeo.data import datasets
+from hbeo.data.gridset import GridSet
 from hbeo.conventions import CLASSES
-from hbeo.errors import MissingDataError
+from hbeo.errors import DataError, MissingDataError
+from hbeo.storage import pack_bits, write_npz
 
 OFFICIAL = {"bathtub": (106, 50), "bed": (515, 100), "chair": (889, 100), "desk": (200, 86),
             "dresser": (200, 86), "monitor": (465, 100), "night_stand": (200, 86),
@@ -123,3 +125,99 @@ def test_select_takes_a_per_class_prefix(vox30_file):
     recs = datasets.select(ds, "train", "ci")
     assert len(recs) == 60 and recs[0].id == "bathtub_0001"
     assert len(datasets.select(ds, "test", "full")) == 907
+
+
+def _vox30_with(path, **change):
+    arrays = dict(X_train=np.zeros((2, 30, 30, 30), np.uint8), y_train=np.array([0, 1]),
+                  names_train=np.array(["a_1", "b_1"]), X_test=np.zeros((1, 30, 30, 30), np.uint8),
+                  y_test=np.array([1]), names_test=np.array(["b_2"]), classes=np.array(["a", "b"]))
+    arrays["X_train"][:, 10:20, 10:20, 10:20] = 1
+    arrays["X_test"][:, 5:9, 5:9, 5:9] = 1
+    arrays.update(change)
+    np.savez(path, **arrays)
+    return path
+
+
+def _float_grids(value):
+    X = np.zeros((2, 30, 30, 30), np.float32)
+    X[:, 10:20, 10:20, 10:20] = 1
+    X[0, 0, 0, 0] = value
+    return X
+
+
+@pytest.mark.parametrize("change, problem", [
+    # issue 14, case 11: floats with NaN used to load as occupied voxels
+    ({"X_train": _float_grids(np.nan)}, r"X_train holds NaN or infinite values"),
+    ({"X_train": np.full((2, 30, 30, 30), np.nan, np.float32)}, r"X_train holds NaN or infinite values"),
+    ({"X_train": _float_grids(0.5)}, r"X_train holds float32 values other than 0 and 1 \(e\.g\. 0\.5\)"),
+    ({"X_train": _float_grids(np.inf)}, r"X_train holds NaN or infinite values"),
+    ({"X_train": np.full((2, 30, 30, 30), 2, np.int16)}, r"X_train holds int16 values other than 0 and 1 \(e\.g\. 2\)"),
+    ({"X_train": np.zeros((2, 30, 30, 30), complex)}, r"X_train has dtype complex128; expected bool, 0/1 integers"),
+    ({"X_train": np.full((2, 30, 30, 30), "x")}, r"X_train has dtype <U1"),
+    ({"X_train": np.zeros((2, 32, 32, 32), bool)}, r"X_train has shape \(2, 32, 32, 32\); expected \(N, 30, 30, 30\)"),
+    ({"y_train": np.array([0.0, np.nan])}, r"y_train must hold integer labels, got float64"),
+    ({"y_train": np.array([0, 2])}, r"y_train has labels outside 0\.\.1"),
+    ({"y_train": np.array([[0, 1]])}, r"X_train has shape .* matching y_train \(1, 2\)"),
+    ({"names_test": np.array(["b_2", "c_2"])}, r"X_test has shape .* matching y_test \(1,\) and names_test \(2,\)"),
+    ({"classes": np.array([1.5, 2.5])}, r"classes must hold class names"),
+    ({"classes": np.array(["a", "a"])}, r"classes must hold distinct"),
+])
+def test_vox30_refuses_what_is_not_a_grid_file(tmp_path, change, problem):
+    bad = _vox30_with(tmp_path / "bad.npz", **change)
+    with pytest.raises(DataError, match=rf"^{tmp_path / 'bad.npz'}: {problem}") as err:
+        datasets.Vox30Dataset(bad)
+    assert "\n" not in str(err.value)
+
+
+def test_vox30_accepts_bool_integer_and_exact_float_grids(tmp_path):
+    for i, dtype in enumerate((bool, np.uint8, np.int64, np.float16, np.float64)):
+        X = _float_grids(1.0).astype(dtype)
+        ds = datasets.Vox30Dataset(_vox30_with(tmp_path / f"ok{i}.npz", X_train=X))
+        grid = ds.records("train")[0].grid()
+        assert grid.dtype == bool and grid.sum() == 1001, dtype
+
+
+# ---------------------------------------------------------------- grid set files (GridSet.load)
+
+def _gridset_file(path, meta_change=None, **arrays):
+    """A grid set file as GridSet.save writes it, with some meta entries or arrays replaced."""
+    grids = np.zeros((2, 30, 30, 30), bool)
+    grids[:, 5:9, 5:9, 5:9] = True
+    meta = {"format_version": 1, "split": "train", "classes": ["a", "b"], "resolution": 30, **(meta_change or {})}
+    a = {"packed": pack_bits(grids), "labels": np.array([0, 1]), "ids": np.array(["a_1", "b_1"]), **arrays}
+    write_npz(path, {k: v for k, v in meta.items() if v is not None}, **a)
+    return path
+
+
+@pytest.mark.parametrize("meta_change, arrays, problem", [
+    # issue 14, case 11: labels and meta were never checked (KeyError, tracebacks, silent nonsense)
+    ({}, {"labels": np.array([0, 7])}, r"labels outside 0\.\.1"),
+    ({}, {"labels": np.array([0.0, np.nan])}, r"labels must be integers, got float64"),
+    ({}, {"labels": np.array([0, 1, 1])}, r"2 grids, labels \(3,\), ids \(2,\)"),
+    ({}, {"ids": np.array([["a", "b"]])}, r"2 grids, labels \(2,\), ids \(1, 2\)"),
+    ({"resolution": None}, {}, r"meta lacks \"resolution\""),
+    ({"resolution": 32}, {}, r"resolution 32; expected 30"),
+    ({"resolution": "30"}, {}, r"\"resolution\" must be an integer"),
+    ({"classes": "ab"}, {}, r"\"classes\" must be a list of distinct class names"),
+    ({"classes": ["a", "a"]}, {}, r"\"classes\" must be a list of distinct class names"),
+    ({"split": None}, {}, r"meta lacks \"split\""),
+    ({}, {"packed": np.zeros((2, 9), np.uint8)}, r"corrupt grid set"),
+])
+def test_gridset_load_refuses_what_is_not_a_grid_set(tmp_path, meta_change, arrays, problem):
+    bad = _gridset_file(tmp_path / "grids_train.npz", meta_change, **arrays)
+    with pytest.raises(DataError, match=rf"^{tmp_path / 'grids_train.npz'}: .*({problem})") as err:
+        GridSet.load(bad)
+    assert "\n" not in str(err.value)
+
+
+def test_gridset_load_reads_a_good_file(tmp_path):
+    gs = GridSet.load(_gridset_file(tmp_path / "grids_train.npz"))
+    assert gs.grids.shape == (2, 30, 30, 30) and gs.grids.dtype == bool and gs.classes == ("a", "b")
+    assert list(gs.labels) == [0, 1] and gs.counts() == {"a": 1, "b": 1}
+
+
+def test_vox30_with_an_empty_split(tmp_path):
+    """An archive whose test split holds no grids (found by tests/test_fuzz.py: a reshape error)."""
+    ds = datasets.Vox30Dataset(_vox30_with(tmp_path / "v.npz", X_test=np.zeros((0, 30, 30, 30), np.uint8),
+                                           y_test=np.zeros(0, np.int64), names_test=np.array([], str)))
+    assert len(ds.records("train")) == 2 and ds.records("test") == []

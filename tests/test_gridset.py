@@ -21,7 +21,8 @@ def test_build_matches_direct_voxelization_and_caches(small, tmp_path):
     for r, g in zip(recs, gs.grids):
         assert np.array_equal(g, gridset.record_grid(r))
     (folder,) = tmp_path.iterdir()
-    assert sorted(p.name for p in folder.iterdir()) == ["grids.npz"]   # chunks merged away
+    (merged,) = folder.iterdir()                                   # chunks merged into one file
+    assert merged.name.startswith("chunk_") and merged.suffix == ".npz"
     again = build_gridset(ds, recs, "train", cache=tmp_path, chunk=2, progress=False)
     assert np.array_equal(again.grids, gs.grids)
 
@@ -41,7 +42,8 @@ def test_resume_after_interruption_and_worker_count_independence(small, tmp_path
     with pytest.raises(KeyboardInterrupt):
         build_gridset(ds, recs, "train", cache=tmp_path / "a", chunk=2, progress=False)
     (folder,) = (tmp_path / "a").iterdir()
-    assert sorted(p.name for p in folder.iterdir()) == ["chunk_00000.npz"]   # only finished work, no temp files
+    (first,) = folder.iterdir()                  # only the finished chunk, no temp files
+    assert first.name.startswith("chunk_") and not first.name.startswith(".")
     monkeypatch.setattr(gridset, "_chunk_job", real)
     done = []
     monkeypatch.setattr(gridset, "_chunk_job", lambda a: done.append(len(a[0])) or real(a))

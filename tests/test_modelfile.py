@@ -19,6 +19,7 @@ from hbeo.errors import DataError
 from hbeo.model import modelfile as MF
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, NetConfig
+from hbeo.storage import write_npz
 from hbeo.subspace.basis import ObjectSubspace
 
 K = Intrinsics.kinect(32, 24)
@@ -388,3 +389,57 @@ def test_conversion_stops_when_the_check_fails(hbeo_model, tmp_path):
     with pytest.raises(DataError, match="predictions differ"):
         MF.convert_legacy(old, old, check=check)
     assert old.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["model.hbeo"]
+
+
+# ------------------------------------------------------------------ through the command line (issue 14, case 4)
+
+def _subspace_without(src, dst, key):
+    """``src`` with its subspace member's meta lacking ``key`` (a subspace file of another writer)."""
+    with np.load(io.BytesIO(members(src)["subspace.npz"]), allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(str(arrays.pop("meta")))
+    meta.pop(key)
+    buf = io.BytesIO()
+    write_npz(buf, meta, **arrays)
+    return rewrite(src, dst, {"subspace.npz": buf.getvalue()})
+
+
+CLI_CASES = {
+    "no net_cfg": lambda s, d: edit_meta(s, d, lambda m: m.pop("net_cfg")),
+    "no classes": lambda s, d: edit_meta(s, d, lambda m: m.pop("classes")),
+    "another size": lambda s, d: edit_meta(s, d, lambda m: m["net_cfg"].update(conv_channels=[4, 4, 4, 8])),
+    "another image size": lambda s, d: edit_meta(s, d, lambda m: m["net_cfg"].update(image_size=[64, 48])),
+    "truncated": lambda s, d: _write(d, s.read_bytes()[:len(s.read_bytes()) * 2 // 3]),
+    "truncated subspace": lambda s, d: rewrite(s, d, {"subspace.npz": members(s)["subspace.npz"][:200]}),
+    "subspace meta lacks params": lambda s, d: _subspace_without(s, d, "params"),
+    "subspace meta lacks classes": lambda s, d: _subspace_without(s, d, "classes"),
+    "empty": lambda s, d: _write(d, b""),
+    "a folder": lambda s, d: (d.mkdir(), d)[1],
+}
+
+
+@pytest.mark.parametrize("case", list(CLI_CASES))
+def test_predict_with_a_malformed_model_exits_2_with_one_line(files, tmp_path, capsys, case):
+    from hbeo.cli import main
+    bad = CLI_CASES[case](files["hbeo"], tmp_path / "bad.hbeo")
+    d = tmp_path / "d.npy"
+    np.save(d, depth_images()[1])
+    out = tmp_path / "r.json"
+    code = main(["predict", "--model", str(bad), "--depth", str(d), "--intrinsics", "30,30,16,12",
+                 "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"error: {bad}: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_a_subspace_file_lacking_a_key_is_one_data_error(files, tmp_path):
+    """ObjectSubspace.load on a file (the run's subspace.npz) whose meta lacks a key: a DataError
+    naming the file, not KeyError; on an anonymous buffer a DataError without a name (not the
+    buffer's repr)."""
+    bad = tmp_path / "subspace.npz"
+    bad.write_bytes(members(_subspace_without(files["hbeo"], tmp_path / "m.hbeo", "params"))["subspace.npz"])
+    with pytest.raises(DataError, match=rf"^{bad}: not a valid subspace file \(KeyError: 'params'\)$"):
+        ObjectSubspace.load(bad)
+    with pytest.raises(DataError) as err:
+        ObjectSubspace.load(io.BytesIO(bad.read_bytes()))
+    assert err.value.path is None and str(err.value).startswith("not a valid subspace file")

@@ -1,10 +1,13 @@
 import hashlib
 import logging
+import os
+import stat
 
 import numpy as np
 import pytest
 
-from hbeo.storage import pack_bits, read_sidecar, sidecar_path, unpack_bits, verify_sidecar, write_sidecar
+from hbeo.storage import (atomic_file, atomic_text, pack_bits, read_sidecar, sidecar_path, unpack_bits,
+                          verify_sidecar, write_npz, write_sidecar)
 
 
 def test_pack_bits_round_trip_grids_and_masks():
@@ -39,3 +42,23 @@ def test_sidecar_write_read_verify(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="hbeo.storage"):
         assert read_sidecar(f) is None
     assert "unreadable checksum record" in caplog.text
+
+
+@pytest.mark.parametrize("umask, want", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_atomic_files_get_the_users_umask(tmp_path, umask, want):
+    """Issue 14, case 10: a file written through a temporary name (mkstemp: 0600) ends with the mode
+    a plain open() would give it, 0666 less the umask; also when it replaces an existing file."""
+    old = os.umask(umask)
+    try:
+        with atomic_file(tmp_path / "a.bin") as f:
+            f.write(b"x")
+        atomic_text(tmp_path / "b.txt", "x")
+        (tmp_path / "c.txt").write_text("old")
+        os.chmod(tmp_path / "c.txt", 0o600)
+        atomic_text(tmp_path / "c.txt", "new")
+        write_npz(tmp_path / "d.npz", {"format_version": 1}, a=np.zeros(2))
+    finally:
+        os.umask(old)
+    for name in ("a.bin", "b.txt", "c.txt", "d.npz"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == want, name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "b.txt", "c.txt", "d.npz"]   # no temporaries

@@ -57,7 +57,7 @@ def test_overlapping_and_self_intersecting_parts():
     (np.zeros((0, 3)), np.zeros((0, 3), int), "no vertices"),
     ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.zeros((0, 3), int), "no triangle faces"),
     ([[0, 0, 0], [1, 0, np.nan], [0, 1, 0]], [[0, 1, 2]], "NaN"),
-    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 5]], "out of range"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 5]], "face 0 refers to vertex 5 but the mesh has 3 vertices"),
 ])
 def test_degenerate_meshes_raise(verts, faces, msg):
     with pytest.raises(DataError, match=msg):

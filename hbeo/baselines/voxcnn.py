@@ -269,7 +269,8 @@ def _cache_meta(run: RunDir, m: Manifest, views: int) -> dict:
 
 
 def _object_grids(run: RunDir, m: Manifest) -> np.ndarray:
-    """Packed complete grids (n_objects, 3375) in the rendered set's object order."""
+    """Packed complete grids (n_objects, 3375) in the rendered set's object order (empty for the objects
+    the set failed to render: they have no images)."""
     from hbeo.data.gridset import GridSet
     path = run.grids("train")
     if not path.exists():
@@ -278,12 +279,17 @@ def _object_grids(run: RunDir, m: Manifest) -> np.ndarray:
     gs = GridSet.load(path)
     where = {(gs.classes[int(lab)], str(i)): n for n, (lab, i) in enumerate(zip(gs.labels, gs.ids))}
     classes = m.classes
-    try:
-        pos = [where[(classes[int(lab)], str(i))] for lab, i in zip(m.object_labels, m.object_ids)]
-    except KeyError as err:
-        raise DataError(path, f"has no grid for rendered object {err.args[0]}; the grids and "
-                              f"{m.root} come from different runs") from None
-    return pack_bits(gs.grids[np.asarray(pos, np.int64)])
+    failed = {int(f["position"]) for f in m.failures if "position" in f}   # no images: their row is never read
+    grids = np.zeros((len(m.object_ids),) + gs.grids.shape[1:], bool)
+    for n, (lab, i) in enumerate(zip(m.object_labels, m.object_ids)):
+        if n in failed:
+            continue
+        try:
+            grids[n] = gs.grids[where[(classes[int(lab)], str(i))]]
+        except KeyError:
+            raise DataError(path, f"has no grid for rendered object {(classes[int(lab)], str(i))}; the grids "
+                                  f"and {m.root} come from different runs") from None
+    return pack_bits(grids)
 
 
 def _load_cache(path: Path, meta: dict) -> dict | None:

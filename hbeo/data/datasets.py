@@ -59,6 +59,24 @@ class ObjectRecord:
         return None if self._grid is None else self._grid()
 
 
+def occupancy(X: np.ndarray, path, name: str) -> np.ndarray:
+    """``X`` as bool, if it holds occupancy: bool, or integers / floats that are all exactly 0 or 1.
+    DataError naming ``path`` and the array ``name`` otherwise (NaN, infinities, 0.5, 2, strings...),
+    so a grid file of densities or garbage is never read as occupied voxels."""
+    kind = X.dtype.kind
+    if kind == "b":
+        return X
+    if kind not in "iuf":
+        raise DataError(path, f"{name} has dtype {X.dtype}; expected bool, 0/1 integers or 0/1 floats")
+    if kind == "f" and not np.isfinite(X).all():
+        raise DataError(path, f"{name} holds NaN or infinite values; expected occupancy (0 or 1)")
+    if X.size and (X.min() < 0 or X.max() > 1 or (kind == "f" and not ((X == 0) | (X == 1)).all())):
+        example = X[(X != 0) & (X != 1)].flat[0]
+        raise DataError(path, f"{name} holds {X.dtype} values other than 0 and 1 (e.g. {example}); "
+                              f"expected occupancy")
+    return X.astype(bool)
+
+
 class Dataset:
     """Base class: subclasses fill ``self._records`` and set ``name`` and ``classes``."""
 
@@ -206,7 +224,9 @@ class Vox30Dataset(Dataset):
     """ModelNet10 as 30^3 solid grids from one ``.npz`` (``X_train``, ``y_train``, ``names_train``, ...).
 
     Empty grids (eight in the official file) are skipped with one warning that counts
-    them; ``skipped`` lists their ids.
+    them; ``skipped`` lists their ids. A file that is not one is refused with a DataError naming
+    it and the array: grids that are not (N, 30, 30, 30) occupancy (:func:`occupancy`), labels
+    that are not integers in range, names or classes that do not fit.
     """
 
     def __init__(self, path=None):
@@ -226,16 +246,25 @@ class Vox30Dataset(Dataset):
         need = [f"{a}_{s}" for s in C.SPLITS for a in ("X", "y", "names")] + ["classes"]
         if missing := [k for k in need if k not in data]:
             raise DataError(self.path, f"missing arrays {missing}; expected {need}")
-        self.classes = tuple(str(c) for c in data["classes"])
+        classes = data["classes"]
+        if classes.dtype.kind not in "US" or classes.ndim != 1 or not classes.size:
+            raise DataError(self.path, f"classes must hold class names (1-D strings), got {classes.dtype} "
+                                       f"{classes.shape}")
+        self.classes = tuple(str(c) for c in classes)
+        if len(set(self.classes)) != len(self.classes):
+            raise DataError(self.path, "classes must hold distinct class names")
         for split in C.SPLITS:
             X, y, names = data[f"X_{split}"], data[f"y_{split}"], data[f"names_{split}"]
-            if X.ndim != 4 or X.shape[1:] != (C.RESOLUTION,) * 3 or not (len(X) == len(y) == len(names)):
+            if (X.ndim != 4 or X.shape[1:] != (C.RESOLUTION,) * 3 or y.ndim != 1 or names.ndim != 1
+                    or not (len(X) == len(y) == len(names))):
                 raise DataError(self.path, f"X_{split} has shape {X.shape}; expected (N, 30, 30, 30) "
                                            f"matching y_{split} {y.shape} and names_{split} {names.shape}")
+            if y.dtype.kind not in "iu":
+                raise DataError(self.path, f"y_{split} must hold integer labels, got {y.dtype}")
             if y.size and (y.min() < 0 or y.max() >= len(self.classes)):
                 raise DataError(self.path, f"y_{split} has labels outside 0..{len(self.classes) - 1}")
-            G = X.astype(bool)
-            occupied = G.reshape(len(G), -1).any(axis=1)
+            G = occupancy(X, self.path, f"X_{split}")
+            occupied = G.any(axis=(1, 2, 3))
             for i in range(len(G)):
                 name = str(names[i])
                 if not occupied[i]:

@@ -126,28 +126,74 @@ def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
                                   f"file has {len(lines)} data lines")
         verts = _numbers(lines[:n_v], 3, np.float64, path, "vertex")
         faces = _faces(lines[n_v:n_v + n_f], path)
-    if not np.isfinite(verts).all():
-        raise DataError(path, "vertex coordinates contain NaN or infinity")
-    if faces.size and (faces.min() < 0 or faces.max() >= n_v):
-        raise DataError(path, f"face refers to vertex {int(faces.max())} but the file has {n_v} vertices")
+    _bad_vertex(verts, path)
+    bad = (faces < 0) | (faces >= n_v)
+    if bad.any():
+        k = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise DataError(path, f"face {k} refers to vertex {int(faces[k][bad[k]][0])} but the file has "
+                              f"{n_v} vertices")
     return verts, faces
+
+
+#: Largest coordinate magnitude accepted: beyond it a file is corrupt (1e30), whatever its unit.
+MAX_COORD = 1e12
+#: Relative size below which a spread (faces' extent, total area) counts as zero.
+_TINY = 1e-9
+
+
+def _xyz(v) -> str:
+    return "(" + ", ".join(f"{float(x):.6g}" for x in v) + ")"
+
+
+def _bad_vertex(v: np.ndarray, name) -> None:
+    """DataError naming the first non-finite vertex, or one farther out than :data:`MAX_COORD`."""
+    finite = np.isfinite(v).all(axis=1)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise DataError(name, f"vertex {i} has a NaN or infinite coordinate {_xyz(v[i])}")
+    far = np.abs(v).max(axis=1) > MAX_COORD
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise DataError(name, f"vertex {i} at {_xyz(v[i])}: coordinates beyond +-{MAX_COORD:g} "
+                              f"(a corrupt file?)")
 
 
 def check_mesh(vertices, faces, name=None) -> tuple[np.ndarray, np.ndarray]:
     """Validated (vertices (V, 3) float64, faces (F, 3) int64) of a mesh; :class:`DataError`
-    naming ``name`` (its file or id) if it is empty, non-finite, out of range or degenerate."""
+    naming ``name`` (its file or id) and the offending value if the mesh is empty, has a
+    non-finite or absurdly far vertex (beyond :data:`MAX_COORD`), a face indexing a vertex that
+    does not exist, or is degenerate: all vertices coincide or lie on one line, one stray vertex
+    so far away that the faces shrink to a point in the grid layout (which spans all vertices),
+    or faces of zero total area."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if v.ndim != 2 or v.shape[1:] != (3,) or len(v) == 0:
         raise DataError(name, f"empty mesh: no vertices (shape {v.shape})")
     if f.ndim != 2 or f.shape[1:] != (3,) or len(f) == 0:
         raise DataError(name, "empty mesh: no triangle faces")
-    if not np.isfinite(v).all():
-        raise DataError(name, "vertex coordinates contain NaN or infinity")
-    if f.min() < 0 or f.max() >= len(v):
-        raise DataError(name, "face indices out of range of the vertex list")
-    if np.ptp(v, axis=0).max() <= 0:
+    _bad_vertex(v, name)
+    bad = (f < 0) | (f >= len(v))
+    if bad.any():
+        k = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise DataError(name, f"face {k} refers to vertex {int(f[k][bad[k]][0])} but the mesh has "
+                              f"{len(v)} vertices")
+    extent = float(np.ptp(v, axis=0).max())
+    if extent <= 0:
         raise DataError(name, "degenerate mesh: all vertices coincide")
+    c = v - v.mean(axis=0)
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(c.T @ c), 0, None))       # ascending singular values
+    if s[1] <= _TINY * s[2]:
+        raise DataError(name, f"degenerate mesh: all {len(v)} vertices are collinear (on one line)")
+    used = v[np.unique(f)]
+    if float(np.ptp(used, axis=0).max()) <= _TINY * extent:
+        lo, hi = used.min(axis=0), used.max(axis=0)
+        i = int(np.argmax(np.maximum(lo - v, v - hi).max(axis=1)))
+        raise DataError(name, f"degenerate mesh: vertex {i} at {_xyz(v[i])} lies so far from the faces "
+                              f"(extent {float(np.ptp(used, axis=0).max()):.3g}) that they shrink to a point")
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    if area <= _TINY * extent ** 2:
+        raise DataError(name, f"degenerate mesh: its {len(f)} faces have zero total area")
     return v, f
 
 

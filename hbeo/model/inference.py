@@ -6,7 +6,15 @@ settings. ``predict(depth, intrinsics, mask=None)`` takes a user's depth image (
 0 = none) with its own intrinsics, brings it into the model's camera
 (:mod:`hbeo.model.preprocess`), runs the network and back-projects the coefficients to a 30^3
 grid. Poses come back in the user's camera frame (R: object -> camera, see
-:mod:`hbeo.conventions`). The file format (``.hbeo``, never unpickled) is
+:mod:`hbeo.conventions`).
+
+An input the model cannot have understood is never answered confidently: an image whose
+object reaches none of the network's input pixels (object outside the model's view: wrong
+intrinsics, wrong mask) or whose object lies at an implausible distance
+(:data:`hbeo.render.depthio.DEPTH_RANGE_M`, e.g. millimetres given as metres) raises
+:class:`~hbeo.errors.DataError`; one that is usable but suspicious (object partly outside the
+view, tiny in it, or far from the training distances) gets ``warnings`` and ``low_confidence``
+in its :class:`Prediction`. The file format (``.hbeo``, never unpickled) is
 :mod:`hbeo.model.modelfile`'s.
 """
 from __future__ import annotations
@@ -26,13 +34,22 @@ from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.errors import DataError
 from hbeo.model.modelfile import read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
-from hbeo.model.preprocess import to_model_view
+from hbeo.model.preprocess import View, to_model_view
+from hbeo.render.depthio import DEPTH_RANGE_M
 from hbeo.subspace.basis import ObjectSubspace
 
 #: inference precisions: float32 (default, exact) or bfloat16 (network weights and activations;
 #: ~2.5x faster convolutions on CPUs with AVX512-BF16; class agreement with float32 ~99 %, see
 #: benchmarks/README.md). The back-projection stays float32.
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
+
+#: below this fraction of the object's pixels inside the model's view, a prediction is low confidence
+MIN_COVERAGE = 0.9
+#: fewer non-zero input pixels than this fraction of the model's image (and at least 16): low confidence
+MIN_INPUT_FRACTION = 0.005
+#: an object centre farther than this factor outside the training distances: low confidence
+#: (models trained without distance normalization only)
+DISTANCE_FACTOR = 1.5
 
 
 def _build_net(cfg: dict) -> HBEONet:
@@ -54,6 +71,8 @@ class Prediction:
     coeffs: np.ndarray            #: (B, k) subspace coefficients
     grids: np.ndarray             #: (B, 30, 30, 30) bool completed shapes (canonical frame)
     timing_ms: dict = field(default_factory=dict)   #: per stage, whole batch
+    warnings: list = field(default_factory=list)    #: (B,) lists of str: why an image's answer is doubtful
+    low_confidence: np.ndarray | None = None        #: (B,) bool: the image has warnings (None: no checks run)
 
     def to_dict(self, i: int = 0) -> dict:
         """JSON-ready summary of image ``i``."""
@@ -62,6 +81,8 @@ class Prediction:
                 "rotation": self.rotation[i].round(6).tolist(), "axis_angle": self.axis_angle[i].round(6).tolist(),
                 "translation_m": self.translation[i].round(6).tolist(), "scale": float(self.scale[i]),
                 "coeffs": self.coeffs[i].round(6).tolist(), "occupied_voxels": int(self.grids[i].sum()),
+                "low_confidence": bool(self.low_confidence[i]) if self.low_confidence is not None else False,
+                "warnings": list(self.warnings[i]) if self.warnings else [],
                 "timing_ms": {k: round(v, 3) for k, v in self.timing_ms.items()}}
 
 
@@ -155,6 +176,7 @@ class HBEO:
         s = self.settings
         views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s["recenter"],
                                ref_distance=s["ref_distance"]) for d, m in zip(batch, masks)]
+        warns = [self._check_view(v, i if len(views) > 1 else None) for i, v in enumerate(views)]
         x = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]
         x = np.concatenate([x] + [np.stack([roll_depth(d, self.intrinsics, a) for d in x]) for a in angles[1:]])
@@ -182,7 +204,34 @@ class HBEO:
         labels = probs.argmax(1)
         return Prediction(probs, labels, [self.classes[i] for i in labels], R, matrix_to_axis_angle(R), trans,
                           scale, coeffs, grids, {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
-                                                 "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3})
+                                                 "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3},
+                          warns, np.array([bool(w) for w in warns]))
+
+    def _check_view(self, v: View, index: int | None) -> list[str]:
+        """Warnings (list of str) for one image's model view; DataError when the network's input
+        would be empty or the object's distance is implausible (see the module docstring)."""
+        who = "" if index is None else f"image {index}: "
+        lo, hi = DEPTH_RANGE_M
+        if not lo <= v.distance <= hi:
+            raise DataError(None, f"{who}the object is {v.distance:.3g} m away, outside the plausible {lo:g}..{hi:g} m; "
+                                  f"depth must be in metres (check the depth scale)")
+        if v.filled == 0:
+            raise DataError(None, f"{who}the object falls outside the model's view ({v.coverage:.0%} of its pixels "
+                                  f"inside, no input pixel filled); check the intrinsics (fx,fy,cx,cy of this "
+                                  f"image) and the mask")
+        out = []
+        if v.coverage < MIN_COVERAGE:
+            out.append(f"only {v.coverage:.0%} of the object's pixels fall inside the model's view (the rest is cut "
+                       f"off); check the intrinsics and the mask")
+        K = self.intrinsics
+        if v.filled < max(16, MIN_INPUT_FRACTION * K.width * K.height):
+            out.append(f"the object fills only {v.filled} of the model's {K.width}x{K.height} input pixels")
+        dist = self.settings.get("render", {}).get("distance")
+        if dist and not self.settings["ref_distance"]:
+            d_lo, d_hi = float(min(dist)), float(max(dist))
+            if not d_lo / DISTANCE_FACTOR <= v.distance <= d_hi * DISTANCE_FACTOR:
+                out.append(f"the object is {v.distance:.2f} m away; the model was trained at {d_lo:g}..{d_hi:g} m")
+        return out
 
     def _roll_permutation(self, angle: float) -> torch.Tensor:
         """(N,) index of the grid rotation nearest Rz(angle) G_j for each bin j (cached): a view rolled by

@@ -13,6 +13,13 @@ is estimated as that of the observed points' median plus their lateral radius
 
 Resampling is backward (each virtual pixel looks up the nearest user pixel along its ray),
 so there are no holes; depth is re-expressed as z in the virtual camera.
+
+How much of the object the model sees is measured, not assumed: ``View.coverage`` is the
+fraction of the object's observed points that project inside the model's image (a wrong
+``K_user``, or a user camera wider than the model's with the object off-centre, lower it), ``View.filled`` the number of non-zero input pixels (0: the network would see an
+empty image). :class:`hbeo.model.inference.HBEO` turns these into an error or a warning.
+
+Imports hbeo.conventions and hbeo.rotations only.
 """
 from __future__ import annotations
 
@@ -34,6 +41,8 @@ class View:
     center: np.ndarray      #: (3,) robust centre of the observed points, user camera frame, metres
     distance: float         #: estimated distance of the object's centre: |center| + its lateral radius
     zoom: float             #: virtual focal length / model focal length (1 without ref_distance)
+    coverage: float = 1.0   #: fraction of the object's points (valid masked pixels) inside the model's image
+    filled: int = 0         #: non-zero pixels of ``depth`` (the network's input)
 
 
 @lru_cache(maxsize=8)
@@ -95,8 +104,8 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     lateral = np.sqrt(2 * np.mean(np.sum((local - mid) ** 2, axis=1)))
     dist = float(np.linalg.norm(center) + lateral)   # the centre lies about one radius behind the surface
     zoom = dist / ref_distance if ref_distance else 1.0
-    if not recenter and zoom == 1.0 and K_user == K_model:
-        return View(d.astype(np.float32), Q, center, dist, zoom)   # the model's own camera: nothing to resample
+    if not recenter and zoom == 1.0 and K_user == K_model:       # the model's own camera: nothing to resample
+        return View(d.astype(np.float32), Q, center, dist, zoom, 1.0, int(np.count_nonzero(d)))
     rays = _pixel_rays(K_model, zoom) @ Q.T
     with np.errstate(divide="ignore", invalid="ignore"):
         uu = np.rint(K_user.fx * rays[..., 0] / rays[..., 2] + K_user.cx)
@@ -114,4 +123,18 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     vals = np.zeros(ok.sum())
     vals[hit] = zv
     out[ok] = vals
-    return View(out.astype(np.float32), Q, center, dist, zoom)
+    out = out.astype(np.float32)
+    return View(out, Q, center, dist, zoom, _coverage(pts, Q, K_model, zoom), int(np.count_nonzero(out)))
+
+
+def _coverage(pts: np.ndarray, Q: np.ndarray, K: Intrinsics, zoom: float) -> float:
+    """Fraction of the points (N, 3), user camera frame, that the virtual camera (``K`` with its
+    focal length times ``zoom``, frame ``Q``) sees inside its image (nearest-pixel bounds, as the
+    resampling rounds)."""
+    p = pts @ Q                                    # virtual frame: Q^T p for each point
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K.fx * zoom * p[:, 0] / z + K.cx
+        v = K.fy * zoom * p[:, 1] / z + K.cy
+    inside = (z > 0) & (u >= -0.5) & (u < K.width - 0.5) & (v >= -0.5) & (v < K.height - 0.5)
+    return float(inside.mean())

@@ -4,6 +4,14 @@ Formats: 16-bit PNG in millimetres (the Kinect / RealSense convention; scale 0.0
 metres), float ``.npy`` and float ``.tif``/``.tiff`` in metres. ``depth_scale`` overrides
 the factor that turns stored values into metres. 0, NaN and negative values mean "no
 measurement". Every problem raises :class:`hbeo.errors.DataError` naming the file.
+
+Plausibility: the median valid depth (after the scale) must lie in :data:`DEPTH_RANGE_M`, which
+catches metres stored in a 16-bit PNG (read as millimetres), a wrong ``depth_scale`` and similar
+unit mistakes; :func:`parse_intrinsics` rejects a field of view outside :data:`FOV_RANGE_DEG`
+(e.g. a focal length of 1e-9 px), pixels far from square and a principal point far outside
+the image.
+
+Imports hbeo.errors and hbeo.conventions only.
 """
 from __future__ import annotations
 
@@ -14,6 +22,12 @@ import numpy as np
 from hbeo.errors import DataError
 
 SUFFIXES = (".png", ".npy", ".tif", ".tiff")
+#: metres: a depth camera's object distances; a median valid depth outside is a unit mistake
+DEPTH_RANGE_M = (0.1, 20.0)
+#: degrees: plausible horizontal and vertical fields of view of a depth camera's pinhole model
+FOV_RANGE_DEG = (1.0, 170.0)
+#: largest plausible ratio fx / fy (or fy / fx)
+MAX_ASPECT = 4.0
 
 
 def _read_raw(path: Path) -> np.ndarray:
@@ -52,6 +66,11 @@ def read_depth(path, depth_scale: float | None = None) -> np.ndarray:
     d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
     if not (d > 0).any():
         raise DataError(path, "depth is all zero (no measurement in the image)")
+    med, (lo, hi) = float(np.median(d[d > 0])), DEPTH_RANGE_M
+    if not lo <= med <= hi:
+        stored = "integers read as millimetres" if raw.dtype.kind in "ui" else "floats read as metres"
+        raise DataError(path, f"median depth {med:.3g} m is implausible (expected {lo:g}..{hi:g} m; {stored} "
+                              f"times scale {depth_scale:g}); check --depth-scale")
     return d.astype(np.float32)
 
 
@@ -79,6 +98,16 @@ def parse_intrinsics(text: str, width: int, height: int):
     if len(vals) != 4:
         raise ValueError(f"intrinsics {text!r}: expected four numbers fx,fy,cx,cy, got {len(vals)}")
     fx, fy, cx, cy = vals
+    if not all(np.isfinite(vals)) or fx <= 0 or fy <= 0:
+        raise ValueError(f"intrinsics {text!r}: need finite numbers and focal lengths fx, fy > 0")
     if not (-width <= cx <= 2 * width and -height <= cy <= 2 * height):
         raise ValueError(f"intrinsics {text!r}: principal point far outside the {width}x{height} image")
+    if max(fx / fy, fy / fx) > MAX_ASPECT:
+        raise ValueError(f"intrinsics {text!r}: fx/fy = {fx / fy:.3g}, implausibly non-square pixels")
+    lo, hi = FOV_RANGE_DEG
+    for axis, f, n in (("horizontal", fx, width), ("vertical", fy, height)):
+        fov = float(np.degrees(2 * np.arctan(n / (2 * f))))
+        if not lo <= fov <= hi:
+            raise ValueError(f"intrinsics {text!r}: {axis} field of view {fov:.3g} degrees for a {width}x{height} "
+                             f"image is implausible (expected {lo:g}..{hi:g}); fx, fy are in pixels of this image")
     return Intrinsics(fx, fy, cx, cy, width, height)

@@ -24,18 +24,31 @@ Determinism
     :func:`hbeo.render.views.object_rng`), so a shard depends only on its own objects: the same bytes for any number of workers. Shards
     are zip files with fixed timestamps, so reruns reproduce their sha256 too.
 
+Bad objects
+    An object whose mesh cannot be loaded or prepared, or fails to render (a
+    :class:`~hbeo.errors.DataError` from :class:`~hbeo.render.views.ObjectViews`), is left out: its
+    shard holds the other objects' views, and the manifest lists it under ``failed``
+    (``{file, reason, step, object, split, position}``, :attr:`Manifest.failures`). It keeps its
+    position in ``object_ids`` (so ``object_index`` still indexes that list) with no image
+    (:meth:`Manifest.image_objects`). If no object at all renders, DataError (its ``failures``
+    attribute lists them) and no manifest.
+
 Resuming
     A shard is written under a temporary name and renamed into place, then a
-    ``shard_NNNNN.npz.sha256`` sidecar (``sha256sum`` format) records its hash; a rerun keeps
-    the shards whose hash matches their sidecar and renders the rest. ``manifest.partial.json``
-    (written first) and ``manifest.json`` (written last) hold the settings: a folder rendered
-    with other settings is refused instead of mixed.
+    ``shard_NNNNN.npz.sha256`` sidecar (``sha256sum`` format) records its hash -- only for a shard
+    without failures, so a rerun tries its failed objects again. A rerun keeps the shards whose
+    hash matches their sidecar and renders the rest; over a finished set it checks every shard
+    against the manifest's sha256 and renders again (with a warning) what is missing, truncated or
+    modified, and the shards of failed objects. ``manifest.partial.json`` (written first) and
+    ``manifest.json`` (written last) hold the settings: a folder rendered with other settings is
+    refused instead of mixed.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import time
+import warnings
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,11 +58,12 @@ from tqdm.auto import tqdm
 
 from hbeo import __version__
 from hbeo.errors import DataError
-from hbeo.rundir import RENDER_MANIFEST
+from hbeo.rundir import RENDER_MANIFEST, failure
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
                                _split_code)
-from hbeo.storage import atomic_text, pack_bits, sha256_file, verify_sidecar, write_npz, write_sidecar
+from hbeo.storage import (atomic_text, pack_bits, sha256_file, sidecar_path, verify_sidecar, write_npz,
+                          write_sidecar)
 
 FORMAT_VERSION = 1
 MANIFEST = RENDER_MANIFEST        #: the set's description, written last (its name is RunDir's)
@@ -74,9 +88,31 @@ def _shard_name(k: int) -> str:
 
 
 def _finished_shard(path: Path) -> tuple[str, int] | None:
-    """(sha256, size) of a shard whose file matches its sidecar, else None."""
+    """(sha256, size) of a shard whose file matches its sidecar, else None (with a warning when a
+    shard file is there but does not match: it is rendered again)."""
     digest = verify_sidecar(path)
-    return (digest, path.stat().st_size) if digest else None
+    if digest:
+        return digest, path.stat().st_size
+    if path.is_file() and sidecar_path(path).is_file():
+        warnings.warn(f"{path}: does not match its recorded sha256 (truncated or modified); rendering it again",
+                      stacklevel=3)
+    return None
+
+
+def _damaged_shards(m: "Manifest") -> list[Path]:
+    """The shards of a finished set that are missing or do not match the manifest's sha256 (each
+    with a warning), and the shards holding objects that failed (to try them again)."""
+    bad = []
+    for s, p in zip(m.shards, m.shard_paths()):
+        if not p.is_file():
+            warnings.warn(f"{p}: shard listed in the manifest is missing; rendering it again", stacklevel=3)
+        elif sha256_file(p) != s["sha256"]:
+            warnings.warn(f"{p}: does not match its recorded sha256 (truncated or modified); rendering it again",
+                          stacklevel=3)
+        else:
+            continue
+        bad.append(p)
+    return bad
 
 
 # --------------------------------------------------------------------------- workers
@@ -106,15 +142,28 @@ def _init_worker(settings, subspace):
 
 
 def _render_shard(ctx: ObjectViews, path: Path, items, split: str) -> dict:
-    """Render the objects ``items`` [(position, record, label)] into shard ``path``."""
-    parts = [ctx.views(rec, pos, label, split) for pos, rec, label in items]
+    """Render the objects ``items`` [(position, record, label)] into shard ``path``; an object that
+    fails (DataError) is left out and reported under ``failed``. No file when every object failed;
+    no sidecar when any did (a rerun renders the shard again)."""
+    parts, failed = [], []
+    for pos, rec, label in items:
+        try:
+            parts.append(ctx.views(rec, pos, label, split))
+        except DataError as err:
+            failed.append(failure(err.path or _record_name(rec), err.problem, "render",
+                                  object=_record_name(rec), split=split, position=int(pos)))
+    sidecar_path(path).unlink(missing_ok=True)
+    if not parts:
+        path.unlink(missing_ok=True)
+        return {"sha256": None, "bytes": 0, "n_images": 0, "backend": ctx.backend, "failed": failed}
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     n = len(arrays["depth"])
     arrays["mask"] = pack_bits(arrays["mask"])
     arrays["intrinsics"] = np.array(ctx.intrinsics.as_tuple(), np.float64)
     digest, size = _write_npz(path, arrays)
-    write_sidecar(path, digest)
-    return {"sha256": digest, "bytes": size, "n_images": n, "backend": ctx.backend}
+    if not failed:
+        write_sidecar(path, digest)
+    return {"sha256": digest, "bytes": size, "n_images": n, "backend": ctx.backend, "failed": failed}
 
 
 def _clean_context():
@@ -212,9 +261,17 @@ class Manifest:
     def shard_paths(self) -> list[Path]:
         return [self.root / s["file"] for s in self.shards]
 
+    @property
+    def failures(self) -> list[dict]:
+        """The objects left out because they could not be rendered (module docstring); [] if none."""
+        return list(self.data.get("failed", []))
+
     def image_objects(self) -> np.ndarray:
-        """Object position (index into :attr:`object_ids`) of every image, in set order."""
-        return np.repeat(np.arange(len(self.data["object_ids"])), int(self.data["views_per_object"]))
+        """Object position (index into :attr:`object_ids`) of every image, in set order (objects
+        that failed have no image)."""
+        per = np.full(len(self.data["object_ids"]), int(self.data["views_per_object"]), np.int64)
+        per[[int(f["position"]) for f in self.failures]] = 0
+        return np.repeat(np.arange(len(per)), per)
 
     def verify(self) -> None:
         """Check every shard against its sha256 (DataError naming the first bad one)."""
@@ -299,10 +356,13 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     if final.exists():
         m = Manifest.load(final)
         _check_same(final, m.data, ident)
-        missing = [p for p in m.shard_paths() if not p.is_file()]
-        if not missing:
+        damaged = _damaged_shards(m)
+        if not damaged and not m.failures:
             return m
-        atomic_text(partial, json.dumps(ident, indent=1))   # a shard was deleted: render it again
+        for p in damaged:                                   # rendered again below
+            p.unlink(missing_ok=True)
+            sidecar_path(p).unlink(missing_ok=True)
+        atomic_text(partial, json.dumps(ident, indent=1))
         final.unlink()
     if partial.exists():
         try:
@@ -349,7 +409,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
                             res = f.result()
                             info[futures[f]] = res
                             backends.add(res.pop("backend"))
-                            bar.update(res["n_images"])
+                            bar.update(len(chunks[futures[f]]) * n_views)
                 except BaseException:
                     for f in pending:
                         f.cancel()
@@ -357,19 +417,27 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     finally:
         bar.close()
     seconds = time.perf_counter() - t0
-    rendered = sum(len(chunks[k]) for k in todo) * n_views
+    rendered = sum(info[k]["n_images"] for k in todo)
+    failed = sorted((f for k in todo for f in info[k].get("failed", [])), key=lambda f: f["position"])
+    if not any(i["n_images"] for i in info.values()):
+        err = DataError(out, f"none of the {len(records)} {split} objects could be rendered; first: "
+                             f"{failed[0]['file']}: {failed[0]['reason']}")
+        err.failures = failed
+        raise err
+    bad = {f["position"] for f in failed}
 
     counts = {c: 0 for c in dataset.classes}
     obj_counts = {c: 0 for c in dataset.classes}
-    for r in records:
-        counts[r.cls] += n_views
-        obj_counts[r.cls] += 1
+    for p, r in enumerate(records):
+        if p not in bad:
+            counts[r.cls] += n_views
+            obj_counts[r.cls] += 1
     w, h = settings.image_size
     data = dict(ident)
     data.update({
         "hbeo_version": __version__,
         "classes": list(dataset.classes),
-        "n_images": total,
+        "n_images": sum(i["n_images"] for i in info.values()),
         "views_per_object": n_views,
         "image_size": [w, h],
         "intrinsics": list(settings.intrinsics.as_tuple()),
@@ -380,7 +448,8 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         "backend_used": sorted(backends) or None,
         "shards": [{"file": paths[k].name, "sha256": info[k]["sha256"], "bytes": info[k]["bytes"],
                     "n_images": info[k]["n_images"], "objects": [starts[k], starts[k] + len(chunks[k])]}
-                   for k in range(len(chunks))],
+                   for k in range(len(chunks)) if info[k]["n_images"]],
+        "failed": failed,
     })
     atomic_text(final, json.dumps(data, indent=1))
     partial.unlink(missing_ok=True)

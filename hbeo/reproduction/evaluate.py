@@ -85,6 +85,9 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     records = dataset.records(split=split, per_class=per_class)
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
+    if unknown := sorted({r.cls for r in records} - set(classes)):
+        raise ValueError(f"{dataset.name}: classes {', '.join(unknown)} are unknown to the model "
+                         f"(it knows {', '.join(classes)})")
     rows = []
     bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
     warm = False

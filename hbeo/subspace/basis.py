@@ -18,6 +18,7 @@ of W, or as I - (unknown rows)^T (unknown rows) when fewer voxels are unknown.
 from __future__ import annotations
 
 import hashlib
+import os
 import warnings
 
 import numpy as np
@@ -26,6 +27,7 @@ from scipy.linalg import blas
 from tqdm.auto import tqdm
 
 from hbeo import conventions as C
+from hbeo.errors import DataError
 from hbeo.storage import read_npz, write_npz
 from hbeo.subspace.vbpca import VBPCA
 
@@ -273,6 +275,15 @@ class ObjectSubspace:
         file if it is not one)."""
         meta, arrays = read_npz(path, ("basis", "means", "components", "ratios", "spectra", "singular_values"),
                                 "subspace", FORMAT_VERSION)
+        try:
+            return cls._from_stored(meta, arrays)
+        except (LookupError, TypeError, ValueError, AttributeError) as err:   # meta of another writer
+            name = getattr(path, "name", None) if hasattr(path, "read") else path
+            raise DataError(name if isinstance(name, (str, os.PathLike)) else None,
+                            f"not a valid subspace file ({type(err).__name__}: {err})") from None
+
+    @classmethod
+    def _from_stored(cls, meta: dict, arrays: dict) -> "ObjectSubspace":
         self = cls(**meta["params"])
         self.classes_ = tuple(meta["classes"])
         self.n_components_ = meta["n_components"]
