@@ -267,9 +267,11 @@ def cmd_evaluate(args) -> int:
                              method=method, pose=pose, rolls=args.rolls)
     metrics["model"] = str(args.model)
     _write_json(args.out, metrics)
+    status = _report_failures(RunDir(Path(args.model).parent), "evaluate", metrics["failures"],
+                              metrics["n_objects"] + len(metrics["failures"]), args.strict, [args.split])
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     print(json.dumps(short, indent=2))
-    return 0
+    return status
 
 
 def _same_predictions(legacy, converted) -> None:
@@ -431,6 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=("so3", "upright"), help="viewpoints (default: the model's training sampler)")
     p.add_argument("--noise", action="store_true", help="apply Kinect-like sensor noise")
     p.add_argument("--per-class", type=int, help="at most this many objects per class")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 2 when any object could not be evaluated (default: report it, score the rest)")
     p.add_argument("--out", required=True, help="metrics JSON (keys: see hbeo/evaluate.py)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)

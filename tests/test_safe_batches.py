@@ -217,3 +217,26 @@ def test_render_batch_continues_past_a_bad_object_and_retries_it(tmp_path, capsy
     printed = capsys.readouterr()
     assert "1 of 5 objects failed" in printed.err and "already rendered" not in printed.out
     assert Manifest.load(run.renders("train")).n_images == 4 * 2
+
+
+# --------------------------------------------------------------------------- evaluate batch
+
+@pytest.mark.slow
+def test_evaluate_batch_scores_the_good_objects_and_names_the_bad(ci_model, copy_run, tmp_path, capsys):
+    """A test split with a truncated mesh among good ones: every good object is scored, the bad one is
+    named in the metrics, in the run's failures.json and on stderr; --strict turns it into exit 2."""
+    root = tmp_path / "ds"
+    d = root / "chair" / "test"
+    d.mkdir(parents=True)
+    for name, text in {**GOOD, "box1a": BROKEN}.items():
+        (d / f"{name}.off").write_text(text)
+    run = copy_run(ci_model.parent, tmp_path / "run", names=[ci_model.name])
+    args = ["evaluate", "--model", str(run.model_file(ci_model.name)), "--dataset", str(root), "--quiet"]
+    assert cli.main([*args, "--out", str(tmp_path / "m.json")]) == 0
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["n_objects"] == 4 and m["n_queries"] == 4
+    assert [f["object"] for f in m["failures"]] == ["test/chair/box1a"]
+    assert "box1a.off" in m["failures"][0]["file"]
+    assert [f["object"] for f in run.read_failures()] == ["test/chair/box1a"]
+    assert "1 of 5 objects failed" in capsys.readouterr().err
+    assert cli.main([*args, "--strict", "--out", str(tmp_path / "s.json")]) == 2

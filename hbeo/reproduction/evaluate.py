@@ -9,7 +9,8 @@ the method had to estimate), ``given_class`` (the true class was given: accuracy
 construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
 the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines),
 ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
-``n_objects``, ``n_queries``
+``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
+or predicted, ``{file, reason, step, object, split}``: left out, the others still scored)
 ``accuracy``                         fraction of queries with the right class
 ``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
                                      ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
@@ -43,7 +44,9 @@ from tqdm.auto import tqdm
 from hbeo import __version__
 from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
+from hbeo.errors import DataError
 from hbeo.rotations import geodesic_deg, z_angle_to_matrix
+from hbeo.rundir import failure
 from hbeo.subspace.metrics import edt_error, iou, naive_error
 
 
@@ -88,7 +91,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     if unknown := sorted({r.cls for r in records} - set(classes)):
         raise ValueError(f"{dataset.name}: classes {', '.join(unknown)} are unknown to the model "
                          f"(it knows {', '.join(classes)})")
-    rows = []
+    rows, failures = [], []
     bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
     warm = False
     for start in range(0, len(records), chunk):
@@ -97,7 +100,12 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
         viewer, batch = ObjectViews(rs), []
         try:
             for i in range(start, min(start + chunk, len(records))):
-                batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
+                try:
+                    batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
+                except DataError as err:      # a bad object: named at the end, the others still scored
+                    failures.append(failure(err.path or _name(records[i]), err.problem, "evaluate",
+                                            object=_name(records[i]), split=split))
+                    bar.update(1)
         finally:
             viewer.close()
         for i, rec, v, truth in batch:
@@ -130,10 +138,20 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                 rows.append(row)
             bar.update(1)
     bar.close()
-    out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records))
+    if not rows:
+        err = DataError(None, f"{dataset.name}/{split}: no view could be evaluated "
+                              f"({len(failures)} of {len(records)} objects failed)")
+        err.failures = failures
+        raise err
+    out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records) - len(failures))
+    out["failures"] = failures
     precision = getattr(model, "precision", "float32") if method is None else None
     return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
             "rolls": rolls if method is None else None, **out}
+
+
+def _name(record) -> str:
+    return f"{record.split}/{record.cls}/{record.id}"
 
 
 def class_mean_grids(subspace) -> dict[str, np.ndarray]:
