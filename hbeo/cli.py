@@ -149,7 +149,7 @@ def cmd_render(args) -> int:
                 warnings.simplefilter("always")
                 m = render_set(ds, recs, split, run.renders(split), settings, subspace=subspace,
                                workers=args.workers or prof.workers, objects_per_shard=args.objects_per_shard,
-                               progress=not args.quiet)
+                               progress=not args.quiet, scheduler=args.scheduler)
         except DataError as err:            # nothing of the split could be rendered: report, then exit 2
             _report_failures(run, "render", failures + getattr(err, "failures", []), total, True, splits)
             raise
@@ -177,18 +177,23 @@ def _loss_weights(text: str):
 def cmd_train(args) -> int:
     from hbeo import config
     from hbeo.model.fit import ViewOptions, fit_model
-    from hbeo.model.pipeline import ensure_render
+    from hbeo.model.pipeline import ensure_render, ensure_subspace
     from hbeo.render.views import RenderSettings
     prof = config.get_profile(args.profile)
     weights = _loss_weights(args.loss_weights)
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
     run = RunDir.for_run(prof.name, args.dataset, args.out)
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler)
-    ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
+    source = args.data or prof.train_data
+    if source == "stream":                            # grids and subspace only: the views are rendered on the fly
+        ensure_subspace(args.dataset, prof, run, progress=not args.quiet)
+    else:
+        ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
     model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
                             view=view, seed=args.seed, out_name=args.name, progress=not args.quiet, loss=weights,
-                            augment_roll=args.augment_roll, max_steps=args.max_steps)
+                            augment_roll=args.augment_roll, max_steps=args.max_steps, data=source,
+                            dataset=args.dataset, settings=settings)
     print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
           f"{model.subspace.dim_} coefficients)")
     return 0
@@ -369,7 +374,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="so3: uniform rotations (the paper's 3-DOF setting); upright: yaw and elevation")
     p.add_argument("--noise", action="store_true", help="apply the Kinect-like sensor noise model")
-    p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes of the local Dask cluster (default: the profile's; unused with --scheduler)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="render on the running Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of a "
+                        "local cluster; its workers must see --out at the same path and run the same hbeo")
     p.add_argument("--backend", choices=("auto", "pyrender", "embree"), default="auto", help="renderer (auto)")
     p.add_argument("--seed", type=int, default=0, help="seed of the viewpoints and noise (0)")
     p.add_argument("--subspace", help="subspace.npz for shape coefficients (default: OUT/subspace.npz if present)")
@@ -385,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
     p.add_argument("--max-steps", type=int, help="stop after this many optimizer steps (the schedule ends there)")
     p.add_argument("--views", type=int, help="rendered views per training object (default: the profile's)")
+    p.add_argument("--data", choices=("memory", "shards", "stream"),
+                   help="training images: the rendered set in memory, the rendered set read shard by shard, or "
+                        "rendered on the fly with a fresh pose per object per pass (default: the profile's)")
     p.add_argument("--loss-weights", default="1,1,1",
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",

@@ -58,6 +58,12 @@ class Profile:
     voxcnn_lr: float = 1e-3
     voxcnn_views_per_object: int | None = 32
     voxcnn_pos_weight: float = 1.5
+    #: Where HBEONet's training images come from (``python -m hbeo train --data``): ``memory`` (the rendered
+    #: set, all in memory), ``shards`` (the rendered set read shard by shard) or ``stream`` (rendered on the
+    #: fly, a fresh pose per object per pass; nothing rendered first); and, in ``stream``, the views rendered
+    #: once per validation object (a fixed set).
+    train_data: str = "memory"
+    stream_val_views: int = 2
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -78,7 +84,8 @@ PROFILES: dict[str, Profile] = {
                    voxcnn_epochs=5, voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3),
     "full": Profile("full", n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
                     image_size=(320, 240), epochs=40, batch_size=128, workers=8,     # the paper's network
-                    beo_so3_grid=8192, beo_1dof_test_per_class=20, beo_3dof_test_per_class=5, needs_gpu=True),
+                    beo_so3_grid=8192, beo_1dof_test_per_class=20, beo_3dof_test_per_class=5, needs_gpu=True,
+                    train_data="stream"),
 }
 
 #: Procedural objects per class when a profile says "all" (the procedural source is unbounded).

@@ -62,11 +62,16 @@ class RollAugment(Dataset):
         return len(self.base)
 
     def __getitem__(self, i):
-        item = dict(self.base[i])
-        a = float(torch.rand(()).item()) * 2 * math.pi
-        d = roll_depth(item["depth"][0].numpy(), self.K, a)
-        R = z_angle_to_matrix(a) @ item["rotation"].double().numpy()
-        item["depth"] = torch.from_numpy(d)[None]
-        item["rotation"] = torch.from_numpy(R.astype(np.float32))
-        item["axis_angle"] = torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32))
-        return item
+        return roll_item(self.base[i], self.K)
+
+
+def roll_item(item: dict, K: Intrinsics) -> dict:
+    """A copy of view item ``item`` rolled by a uniform random angle (torch's global generator)."""
+    item = dict(item)
+    a = float(torch.rand(()).item()) * 2 * math.pi
+    d = roll_depth(item["depth"][0].numpy(), K, a)
+    R = z_angle_to_matrix(a) @ item["rotation"].double().numpy()
+    item["depth"] = torch.from_numpy(d)[None]
+    item["rotation"] = torch.from_numpy(R.astype(np.float32))
+    item["axis_angle"] = torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32))
+    return item

@@ -6,36 +6,46 @@ training and validation data from :func:`training_data`, trains HBEONet through 
 loop (:func:`hbeo.model.train.train` with :class:`HBEONetTask`) and writes the model file
 (``RunDir.model_file``).
 
-:func:`training_data` is the one place the rendered set becomes datasets: today every image is
-held in memory (:class:`ViewArrays`), brought into the model's input view exactly as
-:meth:`hbeo.model.inference.HBEO.predict` will (:mod:`hbeo.model.preprocess`), with standardized
-coefficient targets, split by object into training and validation; streaming shards would
-replace that function only.
+:func:`training_data` is the one place training images become datasets, from one of three
+sources (:data:`DATA_SOURCES`): the rendered set held in memory (:class:`ViewArrays`), the
+rendered set read shard by shard, or views rendered on the fly. Every source gives the same items:
+views brought into the model's input view exactly as :meth:`hbeo.model.inference.HBEO.predict`
+will (:mod:`hbeo.model.preprocess`), standardized coefficient targets, optionally rolled, split by
+object into training and validation; ``memory`` does that once at load (:class:`ViewArrays`), the
+others item by item (:func:`model_item` in :class:`ModelView` / :class:`ModelViewStream`), so
+their memory does not grow with the number of images.
 
 May import: foundation, data, subspace, render, and the other hbeo.model modules.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset, Subset
+from torch.utils.data import Dataset, IterableDataset, Subset
 from tqdm.auto import tqdm
 
 from hbeo import config
 from hbeo.errors import DataError
-from hbeo.model.augment import RollAugment
+from hbeo.data import datasets
+from hbeo.data.gridset import run_gridsets
+from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
 from hbeo.model.preprocess import to_model_view
 from hbeo.model.train import TrainConfig, train
-from hbeo.render.datasets import load_shard, split_by_object
+from hbeo.render.datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
+                                  split_objects)
 from hbeo.render.renderset import Manifest, subspace_info
+from hbeo.render.views import RenderSettings
 from hbeo.rotations import geodesic_deg, matrix_to_axis_angle
 from hbeo.rundir import RunDir
 from hbeo.subspace.basis import ObjectSubspace
+
+#: Where training images come from (:func:`training_data`; ``python -m hbeo train --data``).
+DATA_SOURCES = ("memory", "shards", "stream")
 
 
 @dataclass
@@ -139,29 +149,148 @@ class ViewArrays(Dataset):
                 "coeffs": torch.from_numpy(self.coeffs[i]), "object_index": int(self.object_index[i])}
 
 
+def model_item(raw: dict, K, opts: ViewOptions, coeff_mean, coeff_std) -> dict:
+    """One view as a rendered set gives it (a :class:`DepthShards` / :class:`StreamingDepth` item)
+    -> the item :class:`ViewArrays` holds for it: the same arithmetic, so the three data sources
+    feed the loop the same items."""
+    d, R = raw["depth"][0].numpy().astype(np.float32), raw["rotation"].numpy().astype(np.float64)
+    if (opts.recenter or opts.ref_distance) and (d > 0).any():
+        v = to_model_view(d, K, K, recenter=opts.recenter, ref_distance=opts.ref_distance)
+        d, R = np.asarray(v.depth, np.float32), v.Q.T @ R
+    R = R.astype(np.float32)
+    coeffs = ((raw["coeffs"].numpy().astype(np.float32) - coeff_mean) / coeff_std).astype(np.float32)
+    return {"depth": torch.from_numpy(d.astype(np.float16).astype(np.float32))[None], "label": int(raw["label"]),
+            "rotation": torch.from_numpy(R), "axis_angle": torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32)),
+            "coeffs": torch.from_numpy(coeffs), "object_index": int(raw["object_index"])}
+
+
+class ModelView(Dataset):
+    """A map-style view dataset (e.g. a :class:`DepthShards` subset) read lazily and brought into
+    the model's input view item by item (:func:`model_item`), rolled if ``roll``; ``order(seed,
+    epoch)`` gives each epoch's sampler (:func:`hbeo.model.train.data_loader`)."""
+
+    def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False, order=None):
+        self.base, self.K, self.opts, self.roll, self.order = base, K, opts, roll, order
+        self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
+
+    def __len__(self):
+        return len(self.base)
+
+    def __getitem__(self, i):
+        item = model_item(self.base[i], self.K, self.opts, self.coeff_mean, self.coeff_std)
+        return roll_item(item, self.K) if self.roll else item
+
+    def epoch_sampler(self, seed: int, epoch: int):
+        if self.order is None:
+            return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
+        return self.order(seed, epoch)
+
+
+class ModelViewStream(IterableDataset):
+    """:class:`ModelView` for an iterable view dataset (views rendered on the fly)."""
+
+    def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False):
+        self.base, self.K, self.opts, self.roll = base, K, opts, roll
+        self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.base.set_epoch(epoch)
+
+    def __len__(self):
+        return len(self.base)
+
+    def __iter__(self):
+        for raw in self.base:
+            item = model_item(raw, self.K, self.opts, self.coeff_mean, self.coeff_std)
+            yield roll_item(item, self.K) if self.roll else item
+
+
 @dataclass
 class TrainingData:
-    """What :func:`training_data` returns: the two datasets, the rendered set's manifest and the
-    coefficient standardization (mean, std (k,)) the model must undo at prediction time."""
+    """What :func:`training_data` returns: the two datasets, the render settings and classes of the
+    images, the coefficient standardization (mean, std (k,)) the model must undo at prediction
+    time, and the rendered set's manifest (None when the views are rendered on the fly)."""
 
     train: Dataset
     val: Dataset
-    manifest: Manifest
+    settings: RenderSettings
+    classes: tuple[str, ...]
     coeff_mean: np.ndarray
     coeff_std: np.ndarray
+    manifest: Manifest | None = None
+
+
+def _shard_coeff_stats(m: Manifest, progress: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std (+1e-6) of every image's coefficients, read shard by shard (float64 sums)."""
+    n, s1, s2 = 0, 0.0, 0.0
+    for path in tqdm(m.shard_paths(), desc="coefficient statistics", disable=not progress):
+        with np.load(path, allow_pickle=False) as z:
+            if "coeffs" not in z.files:
+                raise DataError(m.root, "the rendered set has no subspace coefficients; render it with the "
+                                        "run's subspace (notebook 02 first)")
+            c = z["coeffs"].astype(np.float64)
+        n, s1, s2 = n + len(c), s1 + c.sum(0), s2 + (c * c).sum(0)
+    mean = s1 / n
+    return mean.astype(np.float32), (np.sqrt(np.maximum(s2 / n - mean * mean, 0)) + 1e-6).astype(np.float32)
 
 
 def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int = 0, augment_roll: bool = False,
-                  progress: bool = True) -> TrainingData:
-    """The run's rendered training set as (training, validation) datasets, split by object
-    (:func:`hbeo.render.datasets.split_by_object`): all images in memory (:class:`ViewArrays`);
-    ``augment_roll`` rolls every training view by a random angle each time it is read (:class:`RollAugment`)."""
-    data = ViewArrays(RunDir.of(run).renders("train"), view, progress=progress)
-    tr_idx, va_idx = split_by_object(data.manifest, val_fraction, seed)
-    train_set = Subset(data, tr_idx)
-    if augment_roll:
-        train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
-    return TrainingData(train_set, Subset(data, va_idx), data.manifest, data.coeff_mean, data.coeff_std)
+                  progress: bool = True, source: str = "memory", dataset: str | None = None, profile=None,
+                  settings: RenderSettings | None = None) -> TrainingData:
+    """The run's training images as (training, validation) datasets of the same items, split by
+    object (:func:`hbeo.render.datasets.split_by_object`); ``augment_roll`` rolls every training
+    view by a random angle each time it is read (:mod:`hbeo.model.augment`). ``source``:
+
+    ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
+    ``shards``  the rendered training set read lazily, one shard in memory at a time, shuffled shard
+                by shard then within a shard (:class:`ShardSampler`); coefficients standardized with
+                the statistics of every image (as ``memory``, up to rounding).
+    ``stream``  rendered on the fly (:class:`FreshPoses`) from ``dataset``'s training records of
+                ``profile`` with render ``settings``; validation: ``profile.stream_val_views`` views of
+                each validation object, rendered once; coefficients standardized with the statistics of
+                the run's training grids. Needs the run's subspace, renders nothing first.
+    Memory use of ``shards`` and ``stream`` does not grow with the number of images."""
+    run = RunDir.of(run)
+    if source == "memory":
+        data = ViewArrays(run.renders("train"), view, progress=progress)
+        tr_idx, va_idx = split_by_object(data.manifest, val_fraction, seed)
+        train_set = Subset(data, tr_idx)
+        if augment_roll:
+            train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
+        return TrainingData(train_set, Subset(data, va_idx), data.manifest.settings, data.manifest.classes,
+                            data.coeff_mean, data.coeff_std, data.manifest)
+    if source == "shards":
+        shards = DepthShards(run.renders("train"))
+        m = shards.manifest
+        mean, std = _shard_coeff_stats(m, progress)
+        tr_idx, va_idx = split_by_object(m, val_fraction, seed)
+        K = m.settings.intrinsics
+
+        def order(seed_, epoch):
+            sampler = ShardSampler(shards, tr_idx, seed=seed_)
+            sampler.set_epoch(epoch)
+            return sampler
+        return TrainingData(ModelView(Subset(shards, tr_idx), K, view, mean, std, augment_roll, order),
+                            ModelView(Subset(shards, va_idx), K, view, mean, std), m.settings, m.classes,
+                            mean, std, m)
+    if source == "stream":
+        if dataset is None or profile is None or settings is None:
+            raise ValueError("training_data: source 'stream' needs dataset, profile and settings")
+        prof = config.get_profile(profile)
+        ds = datasets.get_dataset(dataset, profile=prof)
+        sub = ObjectSubspace.load(run.subspace)
+        grids = run_gridsets(dataset, prof, run, progress=progress)["train"].grids
+        coeffs = np.concatenate([sub.project(grids[i:i + 512]) for i in range(0, len(grids), 512)])
+        mean, std = coeffs.mean(0), coeffs.std(0) + 1e-6
+        records = datasets.select(ds, "train", prof)
+        val = split_objects([ds.classes.index(r.cls) for r in records], val_fraction, seed)
+        K = settings.intrinsics
+        train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
+        val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
+                                   replace(settings, views_per_object=prof.stream_val_views), sub, shuffle=False)
+        return TrainingData(ModelViewStream(train_views, K, view, mean, std, augment_roll),
+                            ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std)
+    raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
 
 
 # --------------------------------------------------------------------------- run folder -> model file
@@ -170,35 +299,46 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
               view: ViewOptions | None = None, val_fraction: float = 0.1, seed: int = 0,
               out_name: str | None = None, progress: bool = True,
               loss: LossWeights | None = None, augment_roll: bool = False,
-              max_steps: int | None = None) -> tuple[HBEO, Path]:
-    """Train on the run's rendered training set with its subspace; writes the model file
+              max_steps: int | None = None, data: str | None = None, dataset: str | None = None,
+              settings: RenderSettings | None = None) -> tuple[HBEO, Path]:
+    """Train on the run's training images with its subspace; writes the model file
     ``out_name`` (``RunDir.model_file``; None: the run's default model) into ``run`` (a RunDir or a
     path) and returns the model and its path. Checkpoints go to ``RunDir.training(out_name)`` (a rerun resumes exactly).
     ``loss``: the weights gamma_c, gamma_o, gamma_p of the paper's loss (default 1, 1, 1).
     ``augment_roll``: roll every training view by a random angle about the optical axis each
     epoch (:mod:`hbeo.model.augment`; exact, for uniform SO(3) views; not in the paper).
-    ``max_steps``: stop after that many optimizer steps (the schedule ends there)."""
+    ``max_steps``: stop after that many optimizer steps (the schedule ends there).
+    ``data``: where the images come from (:data:`DATA_SOURCES`, see :func:`training_data`; None: the
+    profile's ``train_data``); ``stream`` renders ``dataset``'s objects with ``settings`` (default:
+    the profile's) on the fly, the others read the run's rendered training set."""
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     view = view or ViewOptions()
+    source = data or prof.train_data
+    if source not in DATA_SOURCES:
+        raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
     model_path = run.model_file(out_name)
     sub = ObjectSubspace.load(run.subspace)
-    rendered_with = (Manifest.load(run.renders("train")).data.get("subspace") or {}).get("basis_sha256")
-    if rendered_with != subspace_info(sub)["basis_sha256"]:
-        raise DataError(run.renders("train"), f"rendered with another subspace than {run.subspace}; render it "
-                                              f"again (notebook 03)")
-    data = training_data(run, view, val_fraction, seed, augment_roll, progress)
-    m = data.manifest
-    cfg = NetConfig(image_size=tuple(m.settings.image_size), n_classes=len(m.classes), n_coeffs=sub.dim_,
+    if source != "stream":
+        rendered_with = (Manifest.load(run.renders("train")).data.get("subspace") or {}).get("basis_sha256")
+        if rendered_with != subspace_info(sub)["basis_sha256"]:
+            raise DataError(run.renders("train"), f"rendered with another subspace than {run.subspace}; render it "
+                                                  f"again (notebook 03)")
+    settings = settings or RenderSettings.from_profile(prof)
+    data = training_data(run, view, val_fraction, seed, augment_roll, progress, source, dataset, prof, settings)
+    cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
                     conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
                     normalization=normalization)
+    how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
+           "val_fraction": val_fraction}
+    if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
+        how["source"] = source
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
                      progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.batch_size)),
-                     max_steps=max_steps, data={"augment_roll": augment_roll, "recenter": view.recenter,
-                                                "ref_distance": view.ref_distance, "val_fraction": val_fraction})
+                     max_steps=max_steps, data=how)
     net = train(HBEONetTask(cfg, loss or LossWeights()), data.train, data.val, run.training(model_path), tc)
-    settings = {"object_size": m.settings.object_size, "recenter": view.recenter, "ref_distance": view.ref_distance,
-                "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std, "render": m.settings.to_dict(),
-                "profile": prof.name, "augment_roll": augment_roll}
-    model = HBEO(net.cpu(), sub, m.settings.intrinsics, m.classes, settings)
+    model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
+                      "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,
+                      "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll}
+    model = HBEO(net.cpu(), sub, data.settings.intrinsics, data.classes, model_settings)
     return model, model.save(model_path)

@@ -11,7 +11,7 @@ data order) and which a run with other settings refuses.
 
 Data enters as torch Datasets whose items are dicts of tensors (or numbers); one function,
 :func:`data_loader`, turns them into batches (dicts whose values lead with the batch dimension),
-so streaming shards or a distributed sampler replace that function only.
+which also lets a dataset order itself (shard by shard, or rendered on the fly).
 
 Checkpoints (``checkpoint.pt``, :data:`hbeo.rundir.CHECKPOINT`) hold only tensors and plain Python
 values (configurations as dicts, RNG states as tensors and lists) and are read with
@@ -36,7 +36,7 @@ from typing import Iterable, Protocol
 import numpy as np
 import torch
 from torch import nn
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, IterableDataset
 from tqdm.auto import tqdm
 
 from hbeo.errors import DataError
@@ -132,12 +132,23 @@ def cpu_threads(n: int | None):
 
 
 def data_loader(dataset: Dataset, cfg: TrainConfig, epoch: int | None = None) -> DataLoader:
-    """The one place a dataset becomes batches. ``epoch``: the training order of that epoch, a
-    permutation drawn from a generator seeded with (seed, epoch) only, so a resumed run sees the
-    same order; None: validation, in order (this loader takes its worker seed from torch's global
-    generator, as torch does)."""
+    """The one place a dataset becomes batches. ``epoch``: the training order of that epoch, from
+    (seed, epoch) only, so a resumed run sees the same order; None: validation, in order (this
+    loader takes its worker seed from torch's global generator, as torch does).
+
+    The order of an epoch: an iterable dataset (e.g. views rendered on the fly) orders itself and
+    is told the epoch (``set_epoch(epoch)``); a map-style dataset with an ``epoch_sampler(seed,
+    epoch)`` method gets that sampler (e.g. shard by shard); any other, a permutation drawn from a
+    generator seeded with (seed, epoch)."""
     if epoch is None:
         return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=False, num_workers=cfg.num_workers)
+    if isinstance(dataset, IterableDataset):
+        if hasattr(dataset, "set_epoch"):
+            dataset.set_epoch(epoch)
+        return DataLoader(dataset, batch_size=cfg.batch_size, num_workers=cfg.num_workers)
+    if hasattr(dataset, "epoch_sampler"):
+        return DataLoader(dataset, batch_size=cfg.batch_size, sampler=dataset.epoch_sampler(cfg.seed, epoch),
+                          num_workers=cfg.num_workers)
     gen = torch.Generator().manual_seed(cfg.seed * 100_003 + epoch)
     return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, generator=gen,
                       num_workers=cfg.num_workers, drop_last=False)

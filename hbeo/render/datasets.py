@@ -3,7 +3,8 @@
 :func:`load_shard` reads one shard of a set written by :func:`hbeo.render.renderset.render_set`;
 :class:`DepthShards` serves a whole set as a map-style torch dataset, shuffled shard-wise by
 :class:`ShardSampler` and split into train/validation by object with :func:`split_by_object`;
-:class:`StreamingDepth` renders the same images on the fly (for sets too big for disk).
+:class:`StreamingDepth` renders the same images on the fly (for sets too big for disk) and
+:class:`FreshPoses` renders training views with a fresh pose per object per pass.
 
 Items (dicts of tensors, what :mod:`hbeo.model.train` takes)
     ``depth`` (1, H, W) float32 metres (0 = no object), ``label`` int64, ``rotation`` (3, 3)
@@ -16,6 +17,7 @@ Imports the foundation, torch and :mod:`hbeo.render` (views, renderset).
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -138,9 +140,18 @@ def split_by_object(manifest, val_fraction: float = 0.1, seed: int = 0) -> tuple
     object fall on the same side. Stratified: each class gives ``round(val_fraction * n)`` of
     its n objects (at least one when it has two or more and val_fraction > 0)."""
     m = manifest.manifest if isinstance(manifest, DepthShards) else Manifest.load(manifest)
+    val = split_objects(m.object_labels, val_fraction, seed)
+    img_obj = m.image_objects()
+    idx = np.arange(len(img_obj), dtype=np.int64)
+    return idx[~val[img_obj]], idx[val[img_obj]]
+
+
+def split_objects(labels, val_fraction: float = 0.1, seed: int = 0) -> np.ndarray:
+    """Which objects (class index per object, (n,)) go to validation, a bool mask (n,): the rule of
+    :func:`split_by_object`, for a rendered set's objects or a record list alike."""
     if not 0 <= val_fraction < 1:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
-    labels = m.object_labels
+    labels = np.asarray(labels)
     rng = np.random.default_rng([int(seed), 0x5EED])
     val = np.zeros(len(labels), bool)
     for c in np.unique(labels):
@@ -149,9 +160,7 @@ def split_by_object(manifest, val_fraction: float = 0.1, seed: int = 0) -> tuple
         if val_fraction > 0 and len(objs) >= 2:
             k = min(max(k, 1), len(objs) - 1)
         val[rng.permutation(objs)[:k]] = True
-    img_obj = m.image_objects()
-    idx = np.arange(len(img_obj), dtype=np.int64)
-    return idx[~val[img_obj]], idx[val[img_obj]]
+    return val
 
 
 class ShardSampler(Sampler):
@@ -234,3 +243,33 @@ class StreamingDepth(IterableDataset):
                     yield _item(arrays, v)
         finally:
             ctx.close()
+
+
+class FreshPoses(IterableDataset):
+    """Training views rendered on the fly, a fresh pose per object per pass: each epoch makes
+    ``passes`` (default ``settings.views_per_object``) passes over the objects, each pass a
+    :class:`StreamingDepth` with one view per object, its own object order and its own poses
+    (StreamingDepth epoch ``epoch * passes + pass``). So an epoch has as many images as the
+    rendered set, every batch comes from many objects, no pose repeats between epochs, and memory
+    holds one object's view per worker at a time. Yields the dicts :class:`DepthShards` gives.
+    """
+
+    def __init__(self, dataset, records, split: str, settings: RenderSettings, subspace=None,
+                 passes: int | None = None):
+        self.passes = int(settings.views_per_object if passes is None else passes)
+        if self.passes < 1:
+            raise ValueError(f"FreshPoses: passes must be >= 1, got {self.passes}")
+        self.base = StreamingDepth(dataset, records, split, replace(settings, views_per_object=1), subspace,
+                                   shuffle=True)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return self.passes * len(self.base)
+
+    def __iter__(self):
+        for j in range(self.passes):
+            self.base.set_epoch(self.epoch * self.passes + j)
+            yield from self.base

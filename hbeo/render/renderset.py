@@ -6,7 +6,14 @@ into compressed shards ``shard_NNNNN.npz``; ``manifest.json``, written last, des
 (:class:`Manifest`). The images of one object come from :class:`hbeo.render.views.ObjectViews`;
 :mod:`hbeo.render.datasets` reads a set for training (:class:`~hbeo.render.datasets.DepthShards`)
 or renders the same images on the fly (:class:`~hbeo.render.datasets.StreamingDepth`).
-Imports the foundation and :mod:`hbeo.render` (views, noise; the renderer in worker processes).
+Imports the foundation, :mod:`hbeo.render` (views, noise; the renderer in workers) and Dask.
+
+Where it renders
+    Shards are tasks on a Dask cluster: a new ``LocalCluster`` of ``workers`` processes, one thread
+    each, or the running scheduler at ``scheduler`` (e.g. ``tcp://host:8786``; its workers must run
+    the same hbeo and see ``out_dir`` at the same path: each shard's sha256 is read back here).
+    Dask moves tasks and results with pickle: only use a scheduler you trust. ``workers=1`` with
+    no scheduler renders in one child process instead (no cluster to start; the same bytes).
 
 Shard arrays (N = images in the shard; all views of an object are consecutive)
     ``depth`` float16 (N, H, W), metres, 0 = no object; ``mask`` uint8 (N, ceil(H*W/8)), the
@@ -45,11 +52,13 @@ Resuming
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import logging
+import threading
 import time
 import warnings
-from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,6 +79,7 @@ MANIFEST = RENDER_MANIFEST        #: the set's description, written last (its na
 PARTIAL = "manifest.partial.json"
 #: Default shard size in images (a 320x240 float16 shard of 1024 images is ~160 MB in memory).
 IMAGES_PER_SHARD = 1024
+CONNECT_TIMEOUT = "30s"           #: how long to try to reach a Dask scheduler (distributed's syntax)
 SHARD_KEYS = ("depth", "mask", "label", "object_index", "object_id", "view", "rotation",
               "axis_angle", "translation", "intrinsics")
 
@@ -117,30 +127,6 @@ def _damaged_shards(m: "Manifest") -> list[Path]:
 
 # --------------------------------------------------------------------------- workers
 
-_WORKER: ObjectViews | None = None
-
-
-def _die_with_parent() -> None:
-    """Linux: have the kernel kill this worker when its parent dies (a killed job leaves no
-    orphans that go on writing shards)."""
-    import ctypes
-    import signal
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-def _init_worker(settings, subspace):
-    global _WORKER
-    _die_with_parent()
-    import torch
-    torch.set_num_threads(1)
-    from threadpoolctl import threadpool_limits
-    threadpool_limits(1)           # idle OpenBLAS threads halve the speed of parallel workers
-    _WORKER = ObjectViews(settings, subspace)
-
-
 def _render_shard(ctx: ObjectViews, path: Path, items, split: str) -> dict:
     """Render the objects ``items`` [(position, record, label)] into shard ``path``; an object that
     fails (DataError) is left out and reported under ``failed``. No file when every object failed;
@@ -166,18 +152,99 @@ def _render_shard(ctx: ObjectViews, path: Path, items, split: str) -> dict:
     return {"sha256": digest, "bytes": size, "n_images": n, "backend": ctx.backend, "failed": failed}
 
 
-def _clean_context():
-    """Worker processes that start clean (spawned children): forking a process whose renderer or
-    torch threads are running can deadlock the child, and a spawned worker is a direct child, so
-    it dies with this process (see :func:`_die_with_parent`)."""
+_THREAD = threading.local()      # in a worker: (set key, ObjectViews) of this thread
+
+
+def _views(key: str, spec) -> ObjectViews:
+    """This thread's :class:`ObjectViews` for the set ``key`` (``spec`` = (settings, subspace)):
+    built once per worker thread and set (a renderer's GL context belongs to its thread), replaced
+    when another set comes."""
+    held = getattr(_THREAD, "views", None)
+    if held is None or held[0] != key:
+        import torch
+        from threadpoolctl import threadpool_limits
+        torch.set_num_threads(1)       # one thread per task: idle BLAS threads halve parallel workers' speed
+        threadpool_limits(1)
+        _THREAD.views = held = (key, ObjectViews(*spec))
+    return held[1]
+
+
+def _shard_task(key: str, spec, path: str, items, split: str) -> dict:
+    """Worker side: render one shard (``spec`` is scattered once per set on Dask; None in the
+    single child process, whose initializer built the renderer)."""
+    res = _render_shard(_views(key, spec), Path(path), items, split)
+    res["hbeo_version"] = __version__
+    return res
+
+
+def _start_child(key: str, spec) -> None:
+    """The single child: dies with its parent (Linux; no orphan writes on); builds its renderer."""
+    import ctypes
+    import signal
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    _views(key, spec)
+
+
+def _render_in_child(jobs: dict, split: str, key: str, spec, done) -> None:
+    """``workers=1``, no scheduler: one spawned child (~1 s sooner than a LocalCluster) renders the
+    shards in turn; not this process, where embree's threads would slow later torch work 100x."""
     import multiprocessing
-    return multiprocessing.get_context("spawn")
+    from concurrent.futures import ProcessPoolExecutor
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_child,
+                             initargs=(key, spec)) as pool:
+        for k, (path, items) in jobs.items():
+            res = pool.submit(_shard_task, key, None, str(path), items, split).result()
+            del res["hbeo_version"]
+            done(k, res)
 
 
-def _shard_job(args):
-    """Worker side: render one shard with this process's renderer."""
-    path, items, split = args
-    return _render_shard(_WORKER, path, items, split)
+@contextlib.contextmanager
+def _dask_client(workers: int, scheduler: str | None):
+    """A ``distributed.Client`` of the scheduler at ``scheduler``, or of a new LocalCluster of
+    ``workers`` processes (one thread each; closed on exit; its worker processes exit when this
+    process dies, through distributed's parent-alive pipe, so a killed job leaves no orphans)."""
+    from distributed import Client, LocalCluster
+    with contextlib.ExitStack() as stack:
+        if scheduler:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
+            except (OSError, TimeoutError, ValueError) as err:
+                raise DataError(scheduler, f"cannot reach the Dask scheduler ({type(err).__name__}: {err})") from None
+            client.wait_for_workers(1, timeout=60)   # TimeoutError after a minute without a worker
+        else:
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                silence_logs=logging.ERROR))
+            client = stack.enter_context(Client(cluster))
+        yield client
+
+
+def _render_shards(jobs: dict, split: str, key: str, spec, workers: int, scheduler: str | None, done) -> None:
+    """Render the shards ``jobs`` {k: (path, items)}, calling ``done(k, result)`` as each finishes,
+    on Dask (the first error cancels the rest and is raised), or in one child process."""
+    if workers == 1 and not scheduler:
+        return _render_in_child(jobs, split, key, spec, done)
+    from distributed import as_completed
+    with _dask_client(workers, scheduler) as client:
+        [shared] = client.scatter([spec], broadcast=True)
+        futures = {client.submit(_shard_task, key, shared, str(path.resolve()), items, split, pure=False): k
+                   for k, (path, items) in jobs.items()}
+        try:
+            for f in as_completed(futures):
+                res, path = f.result(), jobs[futures[f]][0]
+                if res.pop("hbeo_version") != __version__:
+                    raise DataError(path, "rendered by a Dask worker running another hbeo version; "
+                                          "install the same hbeo on every worker")
+                if res["n_images"] and (not path.is_file() or sha256_file(path) != res["sha256"]):
+                    raise DataError(path, "a Dask worker wrote this shard, but it is missing or different "
+                                          "here: workers must see the output folder at the same path")
+                done(futures[f], res)
+        except BaseException:
+            client.cancel(list(futures))
+            raise
 
 
 # --------------------------------------------------------------------------- the manifest
@@ -321,11 +388,14 @@ def _check_same(path: Path, old: dict, new: dict) -> None:
 # --------------------------------------------------------------------------- render_set
 
 def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, subspace=None,
-               workers: int = 1, objects_per_shard: int | None = None, progress: bool = True) -> Manifest:
+               workers: int = 1, objects_per_shard: int | None = None, progress: bool = True,
+               scheduler: str | None = None) -> Manifest:
     """Render ``settings.views_per_object`` views of every record into ``out_dir`` (see the module
     docstring for the layout); resumes an interrupted run and returns the :class:`Manifest`
-    (with ``images_per_s`` of this call). Same bytes for any ``workers``. ``objects_per_shard``
-    defaults to about :data:`IMAGES_PER_SHARD` images per shard (at least one object)."""
+    (with ``images_per_s`` of this call). Shards are rendered by a LocalCluster of ``workers``
+    processes, or by the Dask cluster whose scheduler is at ``scheduler`` (``workers`` is then
+    unused); the same bytes either way. ``objects_per_shard`` defaults to about
+    :data:`IMAGES_PER_SHARD` images per shard (at least one object)."""
     records = list(records)
     if not records:
         raise ValueError(f"render_set: no records to render for split {split!r}")
@@ -338,6 +408,8 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         raise ValueError(f"render_set: all records must be from split {split!r}")
     if (workers := _as_int(workers, "render_set: workers")) < 1:
         raise ValueError(f"render_set: workers must be >= 1, got {workers}")
+    if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
+        raise ValueError(f"render_set: scheduler must be an address such as 'tcp://host:8786', got {scheduler!r}")
     if (objects_per_shard := _as_int(objects_per_shard, "render_set: objects_per_shard")) < 1:
         raise ValueError(f"render_set: objects_per_shard must be >= 1, got {objects_per_shard}")
     if subspace is not None and not hasattr(subspace, "basis_"):
@@ -385,35 +457,26 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     paths = [out / _shard_name(k) for k in range(len(chunks))]
     info: dict[int, dict] = {}
     for k, p in enumerate(paths):
-        done = _finished_shard(p)
-        if done is not None:
-            info[k] = {"sha256": done[0], "bytes": done[1], "n_images": len(chunks[k]) * n_views}
+        kept = _finished_shard(p)
+        if kept is not None:
+            info[k] = {"sha256": kept[0], "bytes": kept[1], "n_images": len(chunks[k]) * n_views}
     todo = [k for k in range(len(chunks)) if k not in info]
     total = len(records) * n_views
     bar = tqdm(total=total, initial=total - sum(len(chunks[k]) for k in todo) * n_views, unit="img",
                desc=f"render {dataset.name}/{split}", disable=not progress, smoothing=0.1)
     backends = set()
+
+    def done(k: int, res: dict) -> None:     # a shard is finished
+        info[k] = res
+        backends.add(res.pop("backend"))
+        bar.update(len(chunks[k]) * n_views)
+
     t0 = time.perf_counter()
     try:
         if todo:
-            # always in child processes, even for one worker: embree's thread pool would otherwise
-            # stay in this process and slow any torch work after it (100x seen on 2 cores)
-            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), initializer=_init_worker,
-                                     initargs=(settings, subspace), mp_context=_clean_context()) as pool:
-                futures = {pool.submit(_shard_job, (paths[k], chunks[k], split)): k for k in todo}
-                pending = set(futures)
-                try:
-                    while pending:
-                        finished, pending = wait(pending, return_when=FIRST_EXCEPTION)
-                        for f in finished:
-                            res = f.result()
-                            info[futures[f]] = res
-                            backends.add(res.pop("backend"))
-                            bar.update(len(chunks[futures[f]]) * n_views)
-                except BaseException:
-                    for f in pending:
-                        f.cancel()
-                    raise
+            key = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()
+            _render_shards({k: (paths[k], chunks[k]) for k in todo}, split, key, (settings, subspace),
+                           min(workers, len(todo)), scheduler, done)
     finally:
         bar.close()
     seconds = time.perf_counter() - t0
