@@ -43,7 +43,7 @@ from tqdm.auto import tqdm
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.errors import DataError
-from hbeo.model.train import TrainConfig, train, training_history
+from hbeo.model.train import TrainConfig, ValidationMeans, train, training_history
 from hbeo.render.datasets import load_shard, split_by_object
 from hbeo.render.renderset import Manifest
 from hbeo.rundir import RunDir
@@ -378,23 +378,18 @@ class VoxCNNTask:
         return voxcnn_loss(net(batch["x"]), batch["label"], batch["target"], self.pos_weight, self.occupancy_weight)
 
     def validate(self, net: VoxCNN, batches) -> dict[str, float]:
-        sums, n, correct, ious = {"loss": 0.0, "ce": 0.0, "bce": 0.0}, 0, 0, []
+        means, ious = ValidationMeans(), []
         for b in batches:
             out = net(b["x"])
             loss, parts = voxcnn_loss(out, b["label"], b["target"], self.pos_weight, self.occupancy_weight)
-            m = len(b["label"])
-            sums["loss"] += loss.item() * m
-            for k, v in parts.items():
-                sums[k] += v * m
-            n += m
-            correct += int((out["logits"].argmax(1) == b["label"]).sum())
+            means.add(loss, parts, out["logits"], b["label"])
             pred, tgt = out["occupancy"] >= 0, b["target"] > 0.5
             inter = (pred & tgt).flatten(1).sum(1).float()
             union = (pred | tgt).flatten(1).sum(1).float()
             ious.append(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).cpu())
-        if n == 0:
+        if means.n == 0:
             return {}
-        return {**{k: v / n for k, v in sums.items()}, "accuracy": correct / n, "iou": float(torch.cat(ious).mean())}
+        return {**means.means(), "iou": float(torch.cat(ious).mean())}
 
 
 def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progress: bool = True,

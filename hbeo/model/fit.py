@@ -35,7 +35,7 @@ from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
 from hbeo.model.preprocess import to_model_view
-from hbeo.model.train import TrainConfig, train
+from hbeo.model.train import TrainConfig, ValidationMeans, train
 from hbeo.render.datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
                                   split_objects)
 from hbeo.render.renderset import Manifest, subspace_info
@@ -86,22 +86,16 @@ class HBEONetTask:
         return hbeo_loss(out, batch, self.net_cfg, self.weights, 1.0, getattr(net, "bin_rotations", None))
 
     def validate(self, net: HBEONet, batches) -> dict[str, float]:
-        sums, n, correct, errors = {"loss": 0.0, "ce": 0.0, "pose": 0.0, "coeff": 0.0}, 0, 0, []
+        means, errors = ValidationMeans(), []
         for batch in batches:
             out = net(batch["depth"])
             loss, parts = hbeo_loss(out, batch, self.net_cfg, self.weights, 1.0, getattr(net, "bin_rotations", None))
-            b = len(batch["label"])
-            sums["loss"] += loss.item() * b
-            for k, v in parts.items():
-                sums[k] += v * b
-            n += b
-            correct += int((out["logits"].argmax(1) == batch["label"]).sum())
+            means.add(loss, parts, out["logits"], batch["label"])
             R = net.pose_matrix(out["pose"].float()).cpu().numpy()
             errors.append(geodesic_deg(R, batch["rotation"].cpu().numpy()))
-        if n == 0:
+        if means.n == 0:
             return {}
-        return {**{k: v / n for k, v in sums.items()}, "accuracy": correct / n,
-                "pose_median_deg": float(np.median(np.concatenate(errors)))}
+        return {**means.means(), "pose_median_deg": float(np.median(np.concatenate(errors)))}
 
 
 # --------------------------------------------------------------------------- the data

@@ -105,6 +105,28 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+class ValidationMeans:
+    """Example-weighted means over validation batches of a task's loss, its parts and class accuracy
+    (what every :meth:`TrainTask.validate` reports; the task adds its own metrics)."""
+
+    def __init__(self):
+        self.sums: dict[str, float] = {}
+        self.n = self.correct = 0
+
+    def add(self, loss: torch.Tensor, parts: dict[str, float], logits: torch.Tensor, labels: torch.Tensor) -> None:
+        m = len(labels)
+        for k, v in {"loss": loss.item(), **parts}.items():
+            self.sums[k] = self.sums.get(k, 0.0) + v * m
+        self.n += m
+        self.correct += int((logits.argmax(1) == labels).sum())
+
+    def means(self) -> dict[str, float]:
+        """{loss, each part, accuracy}; {} when no example was added."""
+        if self.n == 0:
+            return {}
+        return {**{k: v / self.n for k, v in self.sums.items()}, "accuracy": self.correct / self.n}
+
+
 def lr_at(step: int, total: int, cfg: TrainConfig) -> float:
     """Linear warm-up to ``lr`` then cosine decay to ``lr * min_lr_ratio`` at step ``total``."""
     if step < cfg.warmup_steps:
