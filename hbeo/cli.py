@@ -179,23 +179,32 @@ def cmd_train(args) -> int:
     from hbeo.model.fit import ViewOptions, fit_model
     from hbeo.model.pipeline import ensure_render, ensure_subspace
     from hbeo.render.views import RenderSettings
+    from hbeo.model import distributed
     prof = config.get_profile(args.profile)
     weights = _loss_weights(args.loss_weights)
+    world = distributed.setup()                       # under torchrun: join the other processes
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
     run = RunDir.for_run(prof.name, args.dataset, args.out)
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler)
     source = args.data or prof.train_data
-    if source == "stream":                            # grids and subspace only: the views are rendered on the fly
-        ensure_subspace(args.dataset, prof, run, progress=not args.quiet)
-    else:
-        ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not args.quiet)
+    quiet = args.quiet or not world.main
+    if world.main:                                    # rank 0 prepares the shared files, the others wait
+        if source == "stream":                        # grids and subspace only: views are rendered on the fly
+            ensure_subspace(args.dataset, prof, run, progress=not quiet)
+        else:
+            ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not quiet)
+    distributed.barrier()
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
     model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
-                            view=view, seed=args.seed, out_name=args.name, progress=not args.quiet, loss=weights,
+                            view=view, seed=args.seed, out_name=args.name, progress=not quiet, loss=weights,
                             augment_roll=args.augment_roll, max_steps=args.max_steps, data=source,
-                            dataset=args.dataset, settings=settings)
-    print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
-          f"{model.subspace.dim_} coefficients)")
+                            dataset=args.dataset, settings=settings, checkpoint_every=args.checkpoint_every,
+                            loader_workers=args.loader_workers)
+    distributed.barrier()                             # the model file is complete before any process exits
+    if world.main:
+        print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
+              f"{model.subspace.dim_} coefficients)" + (f"; {world.size} processes" if world.parallel else ""))
+    distributed.finish()
     return 0
 
 
@@ -393,6 +402,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="run folder (default: results/PROFILE-DATASET)")
     p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
     p.add_argument("--max-steps", type=int, help="stop after this many optimizer steps (the schedule ends there)")
+    p.add_argument("--checkpoint-every", type=int, metavar="N",
+                   help="also write the checkpoint every N steps (default: after every epoch only); a killed run "
+                        "resumes from it")
+    p.add_argument("--loader-workers", type=int, default=0, metavar="N",
+                   help="worker processes that prepare batches while the network trains (default 0: none)")
     p.add_argument("--views", type=int, help="rendered views per training object (default: the profile's)")
     p.add_argument("--data", choices=("memory", "shards", "stream"),
                    help="training images: the rendered set in memory, the rendered set read shard by shard, or "

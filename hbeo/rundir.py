@@ -46,6 +46,8 @@ MODEL_SUFFIX = ".hbeo"
 DEFAULT_MODEL = f"model{MODEL_SUFFIX}"
 CHECKPOINT = "checkpoint.pt"
 TRAIN_LOG = "train_log.csv"
+#: Written by a data-parallel run: every rank's final weights digest (they must agree).
+RANKS = "ranks.json"
 RENDER_MANIFEST = "manifest.json"
 
 

@@ -12,8 +12,8 @@ rendered set read shard by shard, or views rendered on the fly. Every source giv
 views brought into the model's input view exactly as :meth:`hbeo.model.inference.HBEO.predict`
 will (:mod:`hbeo.model.preprocess`), standardized coefficient targets, optionally rolled, split by
 object into training and validation; ``memory`` does that once at load (:class:`ViewArrays`), the
-others item by item (:func:`model_item` in :class:`ModelView` / :class:`ModelViewStream`), so
-their memory does not grow with the number of images.
+others item by item (:func:`model_item` in :class:`ModelView`; :class:`ModelViewStream` for
+validation views rendered in order), so their memory does not grow with the number of images.
 
 May import: foundation, data, subspace, render, and the other hbeo.model modules.
 """
@@ -35,6 +35,7 @@ from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
 from hbeo.model.preprocess import to_model_view
+from hbeo.model import distributed
 from hbeo.model.train import TrainConfig, ValidationMeans, train
 from hbeo.render.datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
                                   split_objects)
@@ -174,14 +175,20 @@ class ModelView(Dataset):
         item = model_item(self.base[i], self.K, self.opts, self.coeff_mean, self.coeff_std)
         return roll_item(item, self.K) if self.roll else item
 
+    def set_epoch(self, epoch: int) -> None:
+        if hasattr(self.base, "set_epoch"):
+            self.base.set_epoch(epoch)
+
     def epoch_sampler(self, seed: int, epoch: int):
-        if self.order is None:
-            return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
-        return self.order(seed, epoch)
+        if self.order is not None:
+            return self.order(seed, epoch)
+        if hasattr(self.base, "epoch_sampler"):
+            return self.base.epoch_sampler(seed, epoch)
+        return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
 
 
 class ModelViewStream(IterableDataset):
-    """:class:`ModelView` for an iterable view dataset (views rendered on the fly)."""
+    """:class:`ModelView` for an iterable view dataset (validation views rendered on the fly, in order)."""
 
     def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False):
         self.base, self.K, self.opts, self.roll = base, K, opts, roll
@@ -239,7 +246,8 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
     ``shards``  the rendered training set read lazily, one shard in memory at a time, shuffled shard
                 by shard then within a shard (:class:`ShardSampler`); coefficients standardized with
                 the statistics of every image (as ``memory``, up to rounding).
-    ``stream``  rendered on the fly (:class:`FreshPoses`) from ``dataset``'s training records of
+    ``stream``  rendered on the fly (:class:`FreshPoses`, a fresh pose per object per pass, any
+                image renderable alone) from ``dataset``'s training records of
                 ``profile`` with render ``settings``; validation: ``profile.stream_val_views`` views of
                 each validation object, rendered once; coefficients standardized with the statistics of
                 the run's training grids. Needs the run's subspace, renders nothing first.
@@ -282,7 +290,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
         train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
                                    replace(settings, views_per_object=prof.stream_val_views), sub, shuffle=False)
-        return TrainingData(ModelViewStream(train_views, K, view, mean, std, augment_roll),
+        return TrainingData(ModelView(train_views, K, view, mean, std, augment_roll),
                             ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std)
     raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
 
@@ -294,7 +302,8 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
               out_name: str | None = None, progress: bool = True,
               loss: LossWeights | None = None, augment_roll: bool = False,
               max_steps: int | None = None, data: str | None = None, dataset: str | None = None,
-              settings: RenderSettings | None = None) -> tuple[HBEO, Path]:
+              settings: RenderSettings | None = None, checkpoint_every: int | None = None,
+              loader_workers: int = 0) -> tuple[HBEO, Path]:
     """Train on the run's training images with its subspace; writes the model file
     ``out_name`` (``RunDir.model_file``; None: the run's default model) into ``run`` (a RunDir or a
     path) and returns the model and its path. Checkpoints go to ``RunDir.training(out_name)`` (a rerun resumes exactly).
@@ -304,7 +313,10 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     ``max_steps``: stop after that many optimizer steps (the schedule ends there).
     ``data``: where the images come from (:data:`DATA_SOURCES`, see :func:`training_data`; None: the
     profile's ``train_data``); ``stream`` renders ``dataset``'s objects with ``settings`` (default:
-    the profile's) on the fly, the others read the run's rendered training set."""
+    the profile's) on the fly, the others read the run's rendered training set.
+    ``checkpoint_every``: also checkpoint every that many steps; ``loader_workers``: DataLoader
+    worker processes that prepare batches while the network trains (0: in this process).
+    Under ``torchrun`` every process trains and returns the model; rank 0 alone writes the file."""
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     view = view or ViewOptions()
@@ -329,10 +341,12 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
         how["source"] = source
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
                      progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.batch_size)),
-                     max_steps=max_steps, data=how)
+                     max_steps=max_steps, data=how, checkpoint_every=checkpoint_every, num_workers=loader_workers)
     net = train(HBEONetTask(cfg, loss or LossWeights()), data.train, data.val, run.training(model_path), tc)
     model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
                       "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,
                       "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll}
     model = HBEO(net.cpu(), sub, data.settings.intrinsics, data.classes, model_settings)
+    if not distributed.world().main:
+        return model, model_path
     return model, model.save(model_path)

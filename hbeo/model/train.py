@@ -5,13 +5,16 @@ A model enters through a :class:`TrainTask` (HBEONet's: :class:`hbeo.model.fit.H
 3-D CNN's: :class:`hbeo.baselines.voxcnn.VoxCNNTask`), which builds the ``nn.Module`` and says what
 its loss and validation metrics are. The loop owns everything else: the device, CPU threads,
 seeding, AdamW with linear warm-up then cosine decay (:func:`lr_at`), gradient clipping, mixed
-precision on CUDA, ``max_steps``, tqdm, the CSV log, and a checkpoint after every epoch (atomic)
-from which a rerun with the same settings resumes exactly (model, optimizer, schedule, RNG and
-data order) and which a run with other settings refuses.
+precision on CUDA, ``max_steps``, data-parallel processes under ``torchrun``
+(:mod:`hbeo.model.distributed`), tqdm, the CSV log, and checkpoints (atomic) after every epoch and
+every ``checkpoint_every`` steps, from which a rerun with the same settings resumes exactly (model,
+optimizer, schedule, RNG, data order and the position inside the epoch) and which a run with
+other settings refuses.
 
 Data enters as torch Datasets whose items are dicts of tensors (or numbers); one function,
-:func:`data_loader`, turns them into batches (dicts whose values lead with the batch dimension),
-which also lets a dataset order itself (shard by shard, or rendered on the fly).
+:func:`data_loader`, turns them into batches (dicts whose values lead with the batch dimension):
+it takes the epoch's order (:func:`epoch_order`: the dataset's own, e.g. shard by shard, or a
+seeded permutation), this process's share of it and, on resume, skips the batches already done.
 
 Checkpoints (``checkpoint.pt``, :data:`hbeo.rundir.CHECKPOINT`) hold only tensors and plain Python
 values (configurations as dicts, RNG states as tensors and lists) and are read with
@@ -19,16 +22,19 @@ values (configurations as dicts, RNG states as tensors and lists) and are read w
 row per epoch: epoch, optimizer steps so far, learning rate, mean training loss, training
 examples per second (``<unit>_per_s``) and the task's validation metrics (``val_*``).
 
-May import: foundation (hbeo.errors, hbeo.storage, hbeo.rundir) and torch; no model module.
+May import: foundation (hbeo.errors, hbeo.storage, hbeo.rundir), torch and
+:mod:`hbeo.model.distributed`; no other model module.
 """
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 import random
 import time
 from contextlib import contextmanager, nullcontext
+from itertools import islice
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Protocol
@@ -40,12 +46,14 @@ from torch.utils.data import DataLoader, Dataset, IterableDataset
 from tqdm.auto import tqdm
 
 from hbeo.errors import DataError
-from hbeo.rundir import CHECKPOINT, TRAIN_LOG
+from hbeo.model import distributed
+from hbeo.model.distributed import World, rank_slice
+from hbeo.rundir import CHECKPOINT, RANKS, TRAIN_LOG
 from hbeo.storage import atomic_file
 
 CHECKPOINT_FORMAT = 1
 #: TrainConfig fields that describe the machine, not the run: they may change between a run and its resume.
-ENVIRONMENT = ("num_workers", "device", "threads", "progress")
+ENVIRONMENT = ("num_workers", "device", "threads", "progress", "checkpoint_every")
 
 
 class TrainTask(Protocol):
@@ -87,6 +95,7 @@ class TrainConfig:
     amp: bool = True                #: mixed precision (CUDA only)
     threads: int | None = None      #: torch threads on a CPU: None = torch's setting, 0 = half the cores
     progress: bool = True
+    checkpoint_every: int | None = None   #: also write the checkpoint every this many steps (None: per epoch only)
     data: dict = field(default_factory=dict)   #: how the data was made (e.g. augmentation); checked on resume
 
     def to_dict(self) -> dict:
@@ -153,27 +162,43 @@ def cpu_threads(n: int | None):
         torch.set_num_threads(before)
 
 
-def data_loader(dataset: Dataset, cfg: TrainConfig, epoch: int | None = None) -> DataLoader:
-    """The one place a dataset becomes batches. ``epoch``: the training order of that epoch, from
-    (seed, epoch) only, so a resumed run sees the same order; None: validation, in order (this
-    loader takes its worker seed from torch's global generator, as torch does).
+def epoch_order(dataset: Dataset, cfg: TrainConfig, epoch: int) -> np.ndarray:
+    """The indices of a map-style ``dataset`` in the training order of ``epoch``, from (seed, epoch)
+    only, the same in every process: the dataset's own ``epoch_sampler(seed, epoch)`` when it has
+    one (e.g. shard by shard), otherwise a permutation from a generator seeded with (seed, epoch)
+    (drawn as torch's DataLoader drew it before this function existed, so earlier runs repeat)."""
+    if hasattr(dataset, "epoch_sampler"):
+        return np.fromiter((int(i) for i in dataset.epoch_sampler(cfg.seed, epoch)), np.int64)
+    gen = torch.Generator().manual_seed(cfg.seed * 100_003 + epoch)
+    torch.empty((), dtype=torch.int64).random_(generator=gen)      # the loader's base seed came first
+    return torch.randperm(len(dataset), generator=gen).numpy()
 
-    The order of an epoch: an iterable dataset (e.g. views rendered on the fly) orders itself and
-    is told the epoch (``set_epoch(epoch)``); a map-style dataset with an ``epoch_sampler(seed,
-    epoch)`` method gets that sampler (e.g. shard by shard); any other, a permutation drawn from a
-    generator seeded with (seed, epoch)."""
+
+def data_loader(dataset: Dataset, cfg: TrainConfig, epoch: int | None = None, world: World = World(),
+                skip_batches: int = 0) -> DataLoader:
+    """The one place a dataset becomes batches. ``epoch``: the training order of that epoch
+    (:func:`epoch_order`), this process's share of it (:func:`hbeo.model.distributed.rank_slice`),
+    without its first ``skip_batches`` batches (a resumed run); None: validation, in order.
+
+    A dataset with ``set_epoch`` is told the epoch first (e.g. views rendered on the fly draw that
+    epoch's poses). An iterable dataset orders itself; in a data-parallel run it must offer
+    ``shard(rank, size)``, and skipping batches is the caller's business. Training loaders draw
+    their worker seeds from a generator of their own, so making one leaves torch's global
+    generator alone (validation loaders take theirs from it, as torch does)."""
     if epoch is None:
         return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=False, num_workers=cfg.num_workers)
-    if isinstance(dataset, IterableDataset):
-        if hasattr(dataset, "set_epoch"):
-            dataset.set_epoch(epoch)
-        return DataLoader(dataset, batch_size=cfg.batch_size, num_workers=cfg.num_workers)
-    if hasattr(dataset, "epoch_sampler"):
-        return DataLoader(dataset, batch_size=cfg.batch_size, sampler=dataset.epoch_sampler(cfg.seed, epoch),
-                          num_workers=cfg.num_workers)
+    if hasattr(dataset, "set_epoch"):
+        dataset.set_epoch(epoch)
     gen = torch.Generator().manual_seed(cfg.seed * 100_003 + epoch)
-    return DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True, generator=gen,
-                      num_workers=cfg.num_workers, drop_last=False)
+    if isinstance(dataset, IterableDataset):
+        if world.parallel:
+            if not hasattr(dataset, "shard"):
+                raise ValueError(f"{type(dataset).__name__} cannot be split between processes (no shard method)")
+            dataset.shard(world.rank, world.size)
+        return DataLoader(dataset, batch_size=cfg.batch_size, num_workers=cfg.num_workers, generator=gen)
+    order = rank_slice(epoch_order(dataset, cfg, epoch), world)[skip_batches * cfg.batch_size:]
+    return DataLoader(dataset, batch_size=cfg.batch_size, sampler=order, num_workers=cfg.num_workers,
+                      generator=gen)
 
 
 def _to(batch: dict, device) -> dict:
@@ -284,37 +309,60 @@ def _validate(task: TrainTask, module: nn.Module, val_set, cfg: TrainConfig, dev
 
 
 def train(task: TrainTask, train_set: Dataset, val_set: Dataset | None, out_dir, cfg: TrainConfig | None = None,
-          stop_after_epoch: int | None = None) -> nn.Module:
-    """Train (or resume training) ``task``'s module; returns it (eval mode) after the last epoch.
+          stop_after_epoch: int | None = None, stop_after_step: int | None = None) -> nn.Module:
+    """Train (or resume training) ``task``'s module; returns it (eval mode, unwrapped) after the last step.
 
     ``out_dir`` (:meth:`hbeo.rundir.RunDir.training`) receives ``checkpoint.pt`` and ``train_log.csv``
-    after every epoch (and after the last step when ``cfg.max_steps`` ends the run inside an epoch).
-    A rerun with the same settings resumes from the checkpoint and ends as an uninterrupted run
-    would; one with other settings (model, loss, schedule, data; not :data:`ENVIRONMENT`) is refused
-    (DataError). ``val_set`` None: no validation. ``stop_after_epoch`` ends early after that epoch
-    (to simulate an interruption in tests)."""
+    after every epoch, every ``cfg.checkpoint_every`` steps, and after the last step. A rerun with
+    the same settings resumes from the checkpoint (mid-epoch too) and ends with the weights an
+    uninterrupted run would have (exactly, with ``num_workers`` 0); one with other settings
+    (model, loss, schedule, data, number of processes; not :data:`ENVIRONMENT`) is refused
+    (DataError). ``val_set`` None: no validation. ``stop_after_epoch`` ends early after that epoch's
+    checkpoint; ``stop_after_step`` returns at once after that step, writing nothing (a kill; both
+    simulate interruptions in tests).
+
+    Under ``torchrun`` (:mod:`hbeo.model.distributed`) every process trains its share of each epoch
+    with gradients averaged by DDP; rank 0 alone validates and writes the checkpoint and log, and at
+    the end every rank's weights digest is compared and written to ``ranks.json``."""
     cfg = cfg or TrainConfig()
+    w = distributed.setup(cfg.device)
     device = pick_device(cfg.device)
+    if device.type == "cuda" and w.parallel:
+        device = torch.device("cuda", torch.cuda.current_device())
     with nullcontext() if device.type == "cuda" else cpu_threads(cfg.threads):
-        return _train(task, train_set, val_set, Path(out_dir), cfg, device, stop_after_epoch)
+        return _train(task, train_set, val_set, Path(out_dir), cfg, device, w, stop_after_epoch, stop_after_step)
 
 
-def _train(task, train_set, val_set, out, cfg, device, stop_after_epoch):
+def _checkpoint(ck_path, log_path, base: dict, module, opt, scaler, epoch_done: int, step: int, history: list,
+                in_epoch: dict | None = None) -> None:
+    save_checkpoint({**base, "model": distributed.unwrap(module).state_dict(), "optimizer": opt.state_dict(),
+                     "scaler": scaler.state_dict(), "epoch": epoch_done, "step": step, "rng": rng_state(),
+                     "history": history, **({"in_epoch": in_epoch} if in_epoch else {})}, ck_path)
+    write_log(history, log_path)
+
+
+def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop_after_step):
     if len(train_set) == 0:
         raise ValueError(f"{out}: the training set is empty")
     if cfg.max_steps is not None and cfg.max_steps < 1:
         raise ValueError(f"max_steps must be >= 1 or None, got {cfg.max_steps}")
-    settings = _plain({"model": task.config(), "train": {k: v for k, v in cfg.to_dict().items()
-                                                         if k not in ENVIRONMENT}})
+    if cfg.checkpoint_every is not None and cfg.checkpoint_every < 1:
+        raise ValueError(f"checkpoint_every must be >= 1 or None, got {cfg.checkpoint_every}")
+    train_settings = {k: v for k, v in cfg.to_dict().items() if k not in ENVIRONMENT}
+    if w.parallel:                        # the schedule depends on it; a lone process keeps its old settings
+        train_settings["world_size"] = w.size
+    settings = _plain({"model": task.config(), "train": train_settings})
     seed_everything(cfg.seed)
     module = task.build().to(device)
+    if w.parallel:                        # same initial weights everywhere, other dropout/augmentation draws
+        seed_everything(cfg.seed * 1_000 + w.rank)
     opt = torch.optim.AdamW(module.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     use_amp = cfg.amp and device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
-    total_steps = len(data_loader(train_set, cfg, 0)) * cfg.epochs
+    total_steps = len(data_loader(train_set, cfg, 0, w)) * cfg.epochs
     if cfg.max_steps is not None:
         total_steps = min(total_steps, cfg.max_steps)
-    start_epoch, step, history = 0, 0, []
+    start_epoch, step, history, in_epoch, rng = 0, 0, [], None, None
     ckpt_path, log_path = out / CHECKPOINT, out / TRAIN_LOG
     if ckpt_path.exists():
         ck = load_checkpoint(ckpt_path)
@@ -322,21 +370,38 @@ def _train(task, train_set, val_set, out, cfg, device, stop_after_epoch):
         module.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         scaler.load_state_dict(ck["scaler"])
-        start_epoch, step, history = ck["epoch"] + 1, ck["step"], ck["history"]
-        set_rng_state(ck["rng"])
-    module.train()
+        start_epoch, step, history, in_epoch = ck["epoch"] + 1, ck["step"], ck["history"], ck.get("in_epoch")
+        rng = ck["rng"]
+        if w.parallel:                    # the checkpoint holds rank 0's generators only
+            rng = None
+            seed_everything(cfg.seed * 1_000 + w.rank + 7_919 * step)
+    base = {"format_version": CHECKPOINT_FORMAT, "kind": task.kind, "settings": settings}
+    net = distributed.wrap(module, w, device)
+    net.train()
     for epoch in range(start_epoch, cfg.epochs):
         if step >= total_steps:           # max_steps reached (in a run this call resumed)
             break
-        bar = tqdm(data_loader(train_set, cfg, epoch), desc=f"{task.kind} epoch {epoch + 1}/{cfg.epochs}",
-                   disable=not cfg.progress, leave=False)
-        t0, seen, run_loss = time.perf_counter(), 0, 0.0
+        skip = in_epoch["batches"] if in_epoch else 0
+        loader = data_loader(train_set, cfg, epoch, w, skip)
+        batches = iter(loader)
+        if skip and isinstance(train_set, IterableDataset):
+            batches = islice(batches, skip, None)
+        if rng is not None:               # after the loader exists, as in the run that wrote the checkpoint
+            set_rng_state(rng)
+            rng = None
+        done, seen, run_loss, elapsed = skip, *((in_epoch["seen"], in_epoch["loss_sum"], in_epoch["elapsed"])
+                                                if in_epoch else (0, 0.0, 0.0))
+        in_epoch = None
+        n_batches = len(loader) + (0 if isinstance(train_set, IterableDataset) else skip)
+        bar = tqdm(batches, total=n_batches, initial=skip, disable=not (cfg.progress and w.main),
+                   desc=f"{task.kind} epoch {epoch + 1}/{cfg.epochs}", leave=False)
+        t0 = time.perf_counter() - elapsed
         for batch in bar:
             batch = _to(batch, device)
             for g in opt.param_groups:
                 g["lr"] = lr_at(step, total_steps, cfg)
             with torch.autocast(device.type, enabled=use_amp):
-                loss, _ = task.loss(module, batch)
+                loss, _ = task.loss(net, batch)
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             scaler.unscale_(opt)
@@ -344,24 +409,37 @@ def _train(task, train_set, val_set, out, cfg, device, stop_after_epoch):
             scaler.step(opt)
             scaler.update()
             step += 1
+            done += 1
             n = _batch_len(batch)
             seen += n
             run_loss += loss.item() * n
             bar.set_postfix({"loss": f"{loss.item():.3f}",
                              f"{task.unit}_s": f"{seen / (time.perf_counter() - t0):.0f}"})
+            if stop_after_step is not None and step >= stop_after_step:
+                return module.eval()      # a kill: nothing written since the last checkpoint
             if step >= total_steps:
                 break
-        speed = seen / max(time.perf_counter() - t0, 1e-9)
-        val = _validate(task, module, val_set, cfg, device) if val_set is not None else {}
-        history.append(_plain({"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
-                               "train_loss": run_loss / max(seen, 1), f"{task.unit}_per_s": speed,
-                               **{f"val_{k}": v for k, v in val.items()}}))
-        save_checkpoint({"format_version": CHECKPOINT_FORMAT, "kind": task.kind, "settings": settings,
-                         "model": module.state_dict(), "optimizer": opt.state_dict(), "scaler": scaler.state_dict(),
-                         "epoch": epoch, "step": step, "rng": rng_state(), "history": history}, ckpt_path)
-        write_log(history, log_path)
+            if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and done < n_batches and w.main:
+                _checkpoint(ckpt_path, log_path, base, module, opt, scaler, epoch - 1, step, history,
+                            {"batches": done, "seen": seen, "loss_sum": run_loss,
+                             "elapsed": time.perf_counter() - t0})
+        elapsed = time.perf_counter() - t0
+        if w.main:
+            val = _validate(task, module, val_set, cfg, device) if val_set is not None else {}
+            history.append(_plain({"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
+                                   "train_loss": run_loss / max(seen, 1),
+                                   f"{task.unit}_per_s": seen / max(elapsed, 1e-9),
+                                   **{f"val_{k}": v for k, v in val.items()}}))
+            _checkpoint(ckpt_path, log_path, base, module, opt, scaler, epoch, step, history)
+        distributed.barrier()
         if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
             break
+    if w.parallel:
+        digests = distributed.agree(module, w)
+        if w.main:
+            with atomic_file(out / RANKS, "w") as f:
+                json.dump({"world_size": w.size, "backend": torch.distributed.get_backend(), "step": step,
+                           "weights_sha256": digests}, f, indent=2)
     return module.eval()
 
 

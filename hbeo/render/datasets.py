@@ -245,13 +245,16 @@ class StreamingDepth(IterableDataset):
             ctx.close()
 
 
-class FreshPoses(IterableDataset):
-    """Training views rendered on the fly, a fresh pose per object per pass: each epoch makes
-    ``passes`` (default ``settings.views_per_object``) passes over the objects, each pass a
-    :class:`StreamingDepth` with one view per object, its own object order and its own poses
-    (StreamingDepth epoch ``epoch * passes + pass``). So an epoch has as many images as the
-    rendered set, every batch comes from many objects, no pose repeats between epochs, and memory
-    holds one object's view per worker at a time. Yields the dicts :class:`DepthShards` gives.
+class FreshPoses(TorchDataset):
+    """Training views rendered on the fly, a fresh pose per object per pass, as a map-style dataset:
+    each epoch makes ``passes`` (default ``settings.views_per_object``) passes over the objects.
+    Image ``i`` of epoch ``e`` is object ``i % n`` in pass ``i // n``, seen from the pose that a
+    one-view :class:`StreamingDepth` draws at its epoch ``e * passes + pass``; ``epoch_sampler``
+    gives each pass its own object order (:meth:`StreamingDepth.object_order`). So an epoch has as
+    many images as the rendered set, every batch comes from many objects, no pose repeats between
+    epochs, any subset of an epoch can be rendered alone (a data-parallel rank's share, a resumed
+    epoch's rest, a DataLoader worker's items) and memory holds one view at a time. Each process
+    opens its own renderer on first use. Yields the dicts :class:`DepthShards` gives.
     """
 
     def __init__(self, dataset, records, split: str, settings: RenderSettings, subspace=None,
@@ -262,6 +265,7 @@ class FreshPoses(IterableDataset):
         self.base = StreamingDepth(dataset, records, split, replace(settings, views_per_object=1), subspace,
                                    shuffle=True)
         self.epoch = 0
+        self._ctx = None
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -269,7 +273,33 @@ class FreshPoses(IterableDataset):
     def __len__(self) -> int:
         return self.passes * len(self.base)
 
-    def __iter__(self):
+    def epoch_sampler(self, seed: int, epoch: int) -> np.ndarray:
+        """Image indices of ``epoch`` in training order: pass by pass, each pass's objects in the
+        order that pass draws (from the render settings' seed; ``seed`` is not used)."""
+        n = len(self.base)
+        orders = []
         for j in range(self.passes):
-            self.base.set_epoch(self.epoch * self.passes + j)
-            yield from self.base
+            self.base.set_epoch(epoch * self.passes + j)
+            orders.append(j * n + self.base.object_order())
+        return np.concatenate(orders)
+
+    def __getitem__(self, i) -> dict:
+        n = len(self.base)
+        i = int(i)
+        if not 0 <= i < len(self):
+            raise IndexError(f"image {i} out of range for {len(self)} views per epoch")
+        j, p = divmod(i, n)
+        if self._ctx is None:
+            self._ctx = ObjectViews(self.base.settings, self.base.subspace)
+        b = self.base
+        return _item(self._ctx.views(b.records[p], p, b.labels[p], b.split, self.epoch * self.passes + j), 0)
+
+    def close(self) -> None:
+        if self._ctx is not None:
+            self._ctx.close()
+            self._ctx = None
+
+    def __getstate__(self):  # DataLoader workers open renderers of their own
+        state = dict(self.__dict__)
+        state["_ctx"] = None
+        return state
