@@ -48,13 +48,55 @@ def test_shards_give_exactly_the_memory_items_and_split(sources):
         torch.testing.assert_close(a["coeffs"], b["coeffs"], rtol=1e-4, atol=1e-4)
 
 
-def test_shard_order_is_shard_by_shard_and_depends_on_seed_and_epoch_only(sources):
+def _loads(shard_sequence, cache: int) -> int:
+    """Shard reads of an LRU cache of ``cache`` shards serving images of these shards in order."""
+    held, loads = [], 0
+    for k in shard_sequence:
+        if k in held:
+            held.remove(k)
+        else:
+            loads += 1
+            held = held[-(cache - 1):] if cache > 1 else []
+        held.append(k)
+    return loads
+
+
+def test_shard_order_depends_on_seed_and_epoch_only(sources):
+    from hbeo.model.fit import SHARD_MIX
     sh = sources["shards"].train
     orders = [list(sh.epoch_sampler(0, e)) for e in (0, 0, 1)]
     assert orders[0] == orders[1] != orders[2]
     assert sorted(orders[0]) == list(range(len(sh)))
-    shards = sh.base.dataset.shard_of(sh.base.indices[orders[0]])
-    assert (np.diff(shards) != 0).sum() == len(np.unique(shards)) - 1      # each shard visited once
+    assert sh.base.dataset.cache_shards == SHARD_MIX
+
+
+class _ClassSortedShards:
+    """What ShardSampler reads of a DepthShards: 40 shards of 25 images, written in class order
+    (10 classes, 4 shards each), as render_set writes them."""
+
+    def __len__(self):
+        return 1000
+
+    def shard_of(self, i):
+        return np.asarray(i) // 25
+
+
+def test_shard_blocks_read_each_shard_once_and_mix_classes():
+    from hbeo.render.datasets import ShardSampler
+    data, labels = _ClassSortedShards(), np.arange(1000) // 100
+    idx = np.arange(0, 1000, 2)                           # a subset, as the training split is
+    for mix in (1, 4, 8):
+        order = np.array(list(ShardSampler(data, idx, seed=3, mix=mix)))
+        assert sorted(order) == list(range(len(idx)))
+        shards = data.shard_of(idx[order])
+        assert _loads(shards, mix) == 40                  # each shard read once with a cache of `mix` shards
+        assert _loads(shards, max(1, mix // 2)) > 40 or mix == 1
+    def classes_per_batch(mix):
+        order = np.array(list(ShardSampler(data, idx, seed=3, mix=mix)))
+        lab = labels[idx[order]]
+        return np.mean([len(np.unique(lab[i:i + 16])) for i in range(0, len(lab) - 15, 16)])
+    # one shard at a time, a batch of 16 spans one or two shards (classes); blocks of 8 shards mix many
+    assert classes_per_batch(1) < 2.2 < 4 < classes_per_batch(8)
 
 
 def test_stream_draws_fresh_poses_each_epoch_and_a_fixed_validation_set(sources):

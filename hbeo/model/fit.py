@@ -47,6 +47,8 @@ from hbeo.subspace.basis import ObjectSubspace
 
 #: Where training images come from (:func:`training_data`; ``python -m hbeo train --data``).
 DATA_SOURCES = ("memory", "shards", "stream")
+#: ``shards``: shards shuffled together (and held in memory) at a time (:class:`ShardSampler`).
+SHARD_MIX = 8
 
 
 @dataclass
@@ -243,8 +245,8 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
     view by a random angle each time it is read (:mod:`hbeo.model.augment`). ``source``:
 
     ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
-    ``shards``  the rendered training set read lazily, one shard in memory at a time, shuffled shard
-                by shard then within a shard (:class:`ShardSampler`); coefficients standardized with
+    ``shards``  the rendered training set read lazily, :data:`SHARD_MIX` shards in memory at a time,
+                shuffled by blocks of that many shards (:class:`ShardSampler`); coefficients standardized with
                 the statistics of every image (as ``memory``, up to rounding).
     ``stream``  rendered on the fly (:class:`FreshPoses`, a fresh pose per object per pass, any
                 image renderable alone) from ``dataset``'s training records of
@@ -262,14 +264,14 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
         return TrainingData(train_set, Subset(data, va_idx), data.manifest.settings, data.manifest.classes,
                             data.coeff_mean, data.coeff_std, data.manifest)
     if source == "shards":
-        shards = DepthShards(run.renders("train"))
+        shards = DepthShards(run.renders("train"), cache_shards=SHARD_MIX)
         m = shards.manifest
         mean, std = _shard_coeff_stats(m, progress)
         tr_idx, va_idx = split_by_object(m, val_fraction, seed)
         K = m.settings.intrinsics
 
         def order(seed_, epoch):
-            sampler = ShardSampler(shards, tr_idx, seed=seed_)
+            sampler = ShardSampler(shards, tr_idx, seed=seed_, mix=SHARD_MIX)
             sampler.set_epoch(epoch)
             return sampler
         return TrainingData(ModelView(Subset(shards, tr_idx), K, view, mean, std, augment_roll, order),

@@ -19,8 +19,9 @@ seeded permutation), this process's share of it and, on resume, skips the batche
 Checkpoints (``checkpoint.pt``, :data:`hbeo.rundir.CHECKPOINT`) hold only tensors and plain Python
 values (configurations as dicts, RNG states as tensors and lists) and are read with
 ``torch.load(weights_only=True)``: nothing is unpickled. The CSV log (``train_log.csv``) has one
-row per epoch: epoch, optimizer steps so far, learning rate, mean training loss, training
-examples per second (``<unit>_per_s``) and the task's validation metrics (``val_*``).
+row per epoch: epoch, optimizer steps so far, learning rate, mean training loss (rank 0's examples),
+training examples per second over all processes (``<unit>_per_s``) and the task's validation
+metrics (``val_*``).
 
 May import: foundation (hbeo.errors, hbeo.storage, hbeo.rundir), torch and
 :mod:`hbeo.model.distributed`; no other model module.
@@ -428,7 +429,7 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
             val = _validate(task, module, val_set, cfg, device) if val_set is not None else {}
             history.append(_plain({"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
                                    "train_loss": run_loss / max(seen, 1),
-                                   f"{task.unit}_per_s": seen / max(elapsed, 1e-9),
+                                   f"{task.unit}_per_s": seen * w.size / max(elapsed, 1e-9),
                                    **{f"val_{k}": v for k, v in val.items()}}))
             _checkpoint(ckpt_path, log_path, base, module, opt, scaler, epoch, step, history)
         distributed.barrier()

@@ -164,16 +164,23 @@ def split_objects(labels, val_fraction: float = 0.1, seed: int = 0) -> np.ndarra
 
 
 class ShardSampler(Sampler):
-    """Shuffles a :class:`DepthShards` (or a subset of its image ``indices``) shard-wise: shards in
-    random order, images in random order within each, so each shard is loaded once per epoch.
-    Yields positions into ``indices`` (use with ``torch.utils.data.Subset(data, indices)``), or
-    image indices when ``indices`` is None. ``set_epoch(e)`` changes the order."""
+    """Shuffles a :class:`DepthShards` (or a subset of its image ``indices``) a few shards at a time:
+    the shards in random order, cut into blocks of ``mix`` shards, the images of each block in
+    random order; so each shard is loaded once per epoch when the dataset caches ``mix`` shards
+    (``DepthShards(cache_shards=mix)``), and memory holds ``mix`` shards. Why blocks: a rendered set
+    writes its objects in class order, so a shard holds one or two classes, and batches drawn from
+    one shard at a time (``mix=1``) are nearly single-class (the loss stalls; measured). Yields
+    positions into ``indices`` (use with ``torch.utils.data.Subset(data, indices)``), or image
+    indices when ``indices`` is None. ``set_epoch(e)`` changes the order."""
 
-    def __init__(self, data: DepthShards, indices=None, shuffle: bool = True, seed: int = 0):
+    def __init__(self, data: DepthShards, indices=None, shuffle: bool = True, seed: int = 0, mix: int = 1):
         self.indices = np.arange(len(data)) if indices is None else np.asarray(indices, np.int64)
         shard = data.shard_of(self.indices)
         self._groups = [np.flatnonzero(shard == k) for k in np.unique(shard)]
         self.shuffle, self.seed, self.epoch = shuffle, int(seed), 0
+        if int(mix) < 1:
+            raise ValueError(f"ShardSampler: mix must be >= 1, got {mix}")
+        self.mix = int(mix)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -186,8 +193,10 @@ class ShardSampler(Sampler):
             yield from (int(i) for g in self._groups for i in g)
             return
         rng = np.random.default_rng([self.seed, self.epoch])
-        for g in rng.permutation(len(self._groups)):
-            yield from (int(i) for i in rng.permutation(self._groups[g]))
+        order = rng.permutation(len(self._groups))
+        for b in range(0, len(order), self.mix):
+            block = np.concatenate([self._groups[g] for g in order[b:b + self.mix]])
+            yield from (int(i) for i in rng.permutation(block))
 
 
 class StreamingDepth(IterableDataset):

@@ -1,0 +1,224 @@
+"""Training throughput and memory of HBEONet's data sources: samples/s and peak RSS per mode.
+
+Goal (issue "Training engine"): >= 1.5x the samples/s of the in-memory loop as it stood before the
+engine work (``memory``, torch's default threads, no loader workers; its weights are bit-identical
+to the parent commit's, so it stands for "today's loop") on the same machine, in the best mode; and
+peak resident memory that does not grow with the number of images for ``shards`` and ``stream``.
+
+Set-up: the ``cpu`` profile's network and images (80x60, batch 64, conv 32-64-128-128) on the
+procedural dataset with ``--objects`` training objects per class (default 24: 240 objects), rendered
+once into ``--work`` with ``--views`` views each (default 20: 4,800 images). Each mode trains
+``--epochs`` epochs in a fresh child process (``python -m hbeo``'s own ``fit_model``; under
+``torchrun`` for the data-parallel modes) and reports the median over epochs 2.. of the train log's
+images/s (all processes; the steps only: loading, validation and checkpoints are outside it; the
+first epoch, with its warm-up, is left out) and its peak RSS
+(``ru_maxrss`` of the process and, separately, of its largest child process: loader workers,
+the renderer probe; for data-parallel runs the largest rank, and the sum over ranks).
+
+``--scaling`` adds the memory part: peak RSS of ``memory``, ``shards`` and ``stream`` at ``--views``
+and at 10x ``--views`` (a rendered set ten times larger; ``stream`` renders ten times more views
+per epoch), ``--scaling-steps`` steps each.
+
+Usage: python benchmarks/bench_train.py [--epochs 4] [--modes 1,2] [--scaling] [--work DIR] [--json FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: name -> (data source, torch threads (None: torch's default), loader workers, processes)
+MODES = {
+    "memory (before: the baseline)": ("memory", None, 0, 1),
+    "memory, 1 thread": ("memory", 1, 0, 1),
+    "shards": ("shards", None, 0, 1),
+    "shards, 1 loader worker": ("shards", None, 1, 1),
+    "stream": ("stream", None, 0, 1),
+    "stream, 2 loader workers": ("stream", None, 2, 1),
+    "DDP 2x1 thread, memory": ("memory", 1, 0, 2),
+    "DDP 2x1 thread, shards": ("shards", 1, 0, 2),
+    "DDP 2x1 thread, stream, 1 loader worker each": ("stream", 1, 1, 2),
+}
+BASELINE = "memory (before: the baseline)"
+
+
+def _profile(objects: int, views: int):
+    from hbeo import config
+    return config.get_profile("cpu", procedural_train_per_class=objects, views_per_object=views)
+
+
+def _run_dir(work: Path, objects: int, views: int) -> Path:
+    return work / f"cpu-procedural-{objects}x{views}"
+
+
+def prepare(work: Path, objects: int, views: int) -> Path:
+    """Grids, subspace and the rendered training set of the bench run (once; reused after)."""
+    from hbeo.model.pipeline import ensure_render
+    run = _run_dir(work, objects, views)
+    ensure_render("procedural", _profile(objects, views), run, "train")
+    return run
+
+
+def child(spec: dict) -> None:
+    """One mode, in this process (or this rank): train, then report speed and peak RSS as JSON."""
+    import torch
+    from hbeo.model import distributed
+    from hbeo.model.fit import fit_model
+    from hbeo.rundir import RunDir
+    if spec["threads"]:
+        torch.set_num_threads(spec["threads"])
+    w = distributed.setup()
+    run = RunDir(spec["run"])
+    name = f"bench_{spec['tag']}"
+    t0 = time.perf_counter()
+    fit_model(run, _profile(spec["objects"], spec["views"]), epochs=spec["epochs"], max_steps=spec["steps"],
+              data=spec["data"],
+              dataset="procedural", out_name=name, progress=False, loader_workers=spec["workers"])
+    wall = time.perf_counter() - t0
+    import pandas as pd
+    log = pd.read_csv(run.train_log(run.model_file(name))) if w.main else None
+    out = {"rank": w.rank, "wall_s": wall, "threads": torch.get_num_threads(),
+           "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+           "workers_rss_mib": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
+           "images_per_s": float(np.median(log.images_per_s.iloc[1:] if len(log) > 1 else log.images_per_s))
+           if log is not None else None}
+    Path(f"{spec['report']}.{w.rank}").write_text(json.dumps(out))
+    distributed.finish()
+
+
+def run_mode(name: str, run: Path, objects: int, views: int, work: Path, epochs: int = 1,
+             steps: int | None = None) -> dict:
+    """Train mode ``name`` in a fresh child process (or torchrun's processes); its row of the table."""
+    import shutil
+    from hbeo.rundir import RunDir
+    data, threads, workers, procs = MODES[name]
+    tag = f"{list(MODES).index(name)}_{views}"
+    report = work / f"report_{tag}"
+    for f in work.glob(f"report_{tag}.*"):
+        f.unlink()
+    shutil.rmtree(RunDir(run).training(f"bench_{tag}.hbeo"), ignore_errors=True)
+    spec = {"run": str(run), "objects": objects, "views": views, "epochs": epochs, "steps": steps, "data": data,
+            "workers": workers, "tag": tag, "report": str(report), "threads": threads or 0}
+    env = dict(os.environ, HBEO_BENCH_CHILD=json.dumps(spec))
+    if procs > 1:
+        cmd = [str(Path(sys.executable).with_name("torchrun")), "--standalone", "--nproc_per_node", str(procs),
+               __file__]
+        env["OMP_NUM_THREADS"] = str(threads or 1)
+    else:
+        cmd = [sys.executable, __file__]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(f"{name}: failed\n{p.stderr[-4000:]}")
+    reps = [json.loads(f.read_text()) for f in sorted(work.glob(f"report_{tag}.*"))]
+    main = next(r for r in reps if r["rank"] == 0)
+    return {"mode": name, "data": data, "procs": procs, "threads": main["threads"], "loader_workers": workers,
+            "images_per_s": main["images_per_s"], "rss_mib": max(r["rss_mib"] for r in reps),
+            "rss_sum_mib": sum(r["rss_mib"] for r in reps), "workers_rss_mib": max(r["workers_rss_mib"] for r in reps),
+            "wall_s": time.perf_counter() - t0}
+
+
+def step_options(steps: int = 20) -> dict[str, float]:
+    """Images/s of one training step alone (forward, the paper's loss, backward, AdamW; batch 64 of
+    the cpu network, torch's default threads, no data loading): the compute ceiling of the loop,
+    and the arithmetic options the issue names, each measured here (kept only if faster)."""
+    import torch
+    from hbeo.model.fit import HBEONetTask
+    from hbeo.model.network import NetConfig, hbeo_loss
+    from hbeo.rotations import matrix_to_axis_angle, uniform_so3
+    p = _profile(24, 20)
+    cfg = NetConfig(image_size=tuple(p.image_size), n_classes=10, n_coeffs=60, conv_channels=tuple(p.conv_channels),
+                    fc=tuple(p.fc), kernel=p.kernel)
+    R = torch.from_numpy(uniform_so3(64, np.random.default_rng(0)).astype(np.float32))
+    batch = {"depth": torch.rand(64, 1, p.image_size[1], p.image_size[0]) * 2, "label": torch.randint(0, 10, (64,)),
+             "rotation": R, "axis_angle": torch.from_numpy(matrix_to_axis_angle(R.numpy()).astype(np.float32)),
+             "coeffs": torch.randn(64, 60)}
+    out = {}
+    for name in ("float32, contiguous", "float32, channels-last (the loop's)", "bfloat16 autocast, channels-last",
+                 "torch.compile, channels-last"):
+        task = HBEONetTask(cfg)
+        torch.manual_seed(0)
+        net = task.build()
+        step_loss = task.loss
+        if "contiguous" in name:
+            net = net.to(memory_format=torch.contiguous_format)
+            step_loss = lambda n, b: hbeo_loss(n(b["depth"]), b, cfg, task.weights, 1.0, None)  # noqa: E731
+        if "compile" in name:
+            net = torch.compile(net)
+        opt = torch.optim.AdamW(net.parameters(), lr=1e-3)
+        for i in range(steps + 3):
+            if i == 3:                                    # after warm-up (and compilation)
+                t0 = time.perf_counter()
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled="bfloat16" in name):
+                loss, _ = step_loss(net, batch)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        out[name] = 64 * steps / (time.perf_counter() - t0)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--epochs", type=int, default=4, help="epochs per mode (the first is left out of the speed)")
+    ap.add_argument("--objects", type=int, default=24, help="procedural training objects per class")
+    ap.add_argument("--views", type=int, default=20)
+    ap.add_argument("--modes", help="comma-separated mode numbers (1-based, in the table's order); default all")
+    ap.add_argument("--scaling", action="store_true", help="also peak RSS at --views and 10x --views")
+    ap.add_argument("--scaling-steps", type=int, default=20)
+    ap.add_argument("--work", default=os.path.join(tempfile.gettempdir(), "hbeo_bench_train"))
+    ap.add_argument("--json", help="also write the rows to this JSON file")
+    if "HBEO_BENCH_CHILD" in os.environ:          # a mode's child process (see run_mode)
+        return child(json.loads(os.environ["HBEO_BENCH_CHILD"]))
+    args = ap.parse_args()
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    run = prepare(work, args.objects, args.views)
+    names = list(MODES)
+    if args.modes:
+        names = [names[int(i) - 1] for i in args.modes.split(",")]
+        if BASELINE not in names:
+            names.insert(0, BASELINE)
+    rows = []
+    print(f"cpu profile network, procedural, {args.objects * 10} objects x {args.views} views, {args.epochs} epochs; "
+          f"{os.cpu_count()} cores")
+    print(f"{'mode':48s} {'images/s':>9s} {'ratio':>6s} {'peak RSS MiB':>13s} {'(sum)':>7s} {'children':>8s}")
+    for name in names:
+        r = run_mode(name, run, args.objects, args.views, work, epochs=args.epochs)
+        rows.append(r)
+        base = next((x["images_per_s"] for x in rows if x["mode"] == BASELINE), None)
+        r["ratio"] = r["images_per_s"] / base if base else None
+        print(f"{name:48s} {r['images_per_s']:9.0f} {r['ratio']:6.2f} {r['rss_mib']:13.0f} {r['rss_sum_mib']:7.0f} "
+              f"{r['workers_rss_mib']:8.0f}", flush=True)
+    options = step_options()
+    print("\none training step alone (no data loading), images/s:")
+    for k, v in options.items():
+        print(f"  {k:40s} {v:6.0f}")
+    scaling = []
+    if args.scaling:
+        big = prepare(work, args.objects, args.views * 10)
+        print(f"\npeak RSS (MiB) at {args.objects * 10 * args.views} and {args.objects * 10 * args.views * 10} "
+              f"training images, {args.scaling_steps} steps")
+        for name in ("memory (before: the baseline)", "shards", "stream"):
+            small_r = run_mode(name, run, args.objects, args.views, work, steps=args.scaling_steps)
+            big_r = run_mode(name, big, args.objects, args.views * 10, work, steps=args.scaling_steps)
+            scaling.append({"mode": name, "rss_small_mib": small_r["rss_mib"], "rss_large_mib": big_r["rss_mib"]})
+            print(f"{name:32s} {small_r['rss_mib']:8.0f} {big_r['rss_mib']:8.0f}  "
+                  f"(x{big_r['rss_mib'] / small_r['rss_mib']:.2f})", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"rows": rows, "step_options": options, "scaling": scaling,
+                                               "args": vars(args)},
+                                              indent=2, default=float))
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
