@@ -11,22 +11,21 @@ once into ``--work`` with ``--views`` views each (default 20: 4,800 images). Eac
 ``--epochs`` epochs in a fresh child process (``python -m hbeo``'s own ``fit_model``; under
 ``torchrun`` for the data-parallel modes) and reports the median over epochs 2.. of the train log's
 images/s (all processes; the steps only: loading, validation and checkpoints are outside it; the
-first epoch, with its warm-up, is left out) and its peak RSS
-(``ru_maxrss`` of the process and, separately, of its largest child process: loader workers,
-the renderer probe; for data-parallel runs the largest rank, and the sum over ranks).
+first epoch, with its warm-up, is left out) and its peak resident memory: ``VmHWM`` of the
+training process (for data-parallel runs the largest rank, and the sum over ranks) and, sampled,
+of the process with its loader workers ("+workers", summed over ranks).
 
 ``--scaling`` adds the memory part: peak RSS of ``memory``, ``shards`` and ``stream`` at ``--views``
 and at 10x ``--views`` (a rendered set ten times larger; ``stream`` renders ten times more views
 per epoch), ``--scaling-steps`` steps each.
 
-Usage: python benchmarks/bench_train.py [--epochs 4] [--modes 1,2] [--scaling] [--work DIR] [--json FILE]
+Usage: python benchmarks/bench_train.py [--epochs 4] [--modes 1,2] [--repeat N] [--scaling] [--work DIR] [--json FILE]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -67,6 +66,44 @@ def prepare(work: Path, objects: int, views: int) -> Path:
     return run
 
 
+def vm_hwm_mib() -> float:
+    """This process's peak resident memory (``VmHWM``, MiB). Not ``ru_maxrss``: Linux carries that
+    over from the image a process had before ``exec`` (here: the benchmark's own, large, process)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError("no VmHWM in /proc/self/status")
+
+
+class TreePeak:
+    """The peak of this process's resident memory plus its children's (loader workers), sampled
+    every 50 ms in a thread (shared pages count once per process, so this is an upper bound)."""
+
+    def __init__(self):
+        import threading
+        import psutil
+        self.peak, self._stop = 0, threading.Event()
+        me = psutil.Process()
+
+        def sample():
+            while not self._stop.is_set():
+                total = 0
+                for p in [me, *me.children(recursive=True)]:
+                    try:
+                        total += p.memory_info().rss
+                    except psutil.Error:
+                        pass
+                self.peak = max(self.peak, total)
+                self._stop.wait(0.05)
+        self._thread = threading.Thread(target=sample, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> float:
+        self._stop.set()
+        self._thread.join()
+        return self.peak / 2**20
+
+
 def child(spec: dict) -> None:
     """One mode, in this process (or this rank): train, then report speed and peak RSS as JSON."""
     import torch
@@ -76,6 +113,7 @@ def child(spec: dict) -> None:
     if spec["threads"]:
         torch.set_num_threads(spec["threads"])
     w = distributed.setup()
+    tree = TreePeak()
     run = RunDir(spec["run"])
     name = f"bench_{spec['tag']}"
     t0 = time.perf_counter()
@@ -85,9 +123,8 @@ def child(spec: dict) -> None:
     wall = time.perf_counter() - t0
     import pandas as pd
     log = pd.read_csv(run.train_log(run.model_file(name))) if w.main else None
-    out = {"rank": w.rank, "wall_s": wall, "threads": torch.get_num_threads(),
-           "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-           "workers_rss_mib": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
+    out = {"rank": w.rank, "wall_s": wall, "threads": torch.get_num_threads(), "rss_mib": vm_hwm_mib(),
+           "tree_rss_mib": tree.stop(),
            "images_per_s": float(np.median(log.images_per_s.iloc[1:] if len(log) > 1 else log.images_per_s))
            if log is not None else None}
     Path(f"{spec['report']}.{w.rank}").write_text(json.dumps(out))
@@ -122,7 +159,7 @@ def run_mode(name: str, run: Path, objects: int, views: int, work: Path, epochs:
     main = next(r for r in reps if r["rank"] == 0)
     return {"mode": name, "data": data, "procs": procs, "threads": main["threads"], "loader_workers": workers,
             "images_per_s": main["images_per_s"], "rss_mib": max(r["rss_mib"] for r in reps),
-            "rss_sum_mib": sum(r["rss_mib"] for r in reps), "workers_rss_mib": max(r["workers_rss_mib"] for r in reps),
+            "rss_sum_mib": sum(r["rss_mib"] for r in reps), "tree_rss_mib": sum(r["tree_rss_mib"] for r in reps),
             "wall_s": time.perf_counter() - t0}
 
 
@@ -154,9 +191,11 @@ def step_options(steps: int = 20) -> dict[str, float]:
         if "compile" in name:
             net = torch.compile(net)
         opt = torch.optim.AdamW(net.parameters(), lr=1e-3)
+        t_start = time.perf_counter()
         for i in range(steps + 3):
             if i == 3:                                    # after warm-up (and compilation)
                 t0 = time.perf_counter()
+                out[f"{name}: warm-up s"] = t0 - t_start
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled="bfloat16" in name):
                 loss, _ = step_loss(net, batch)
             opt.zero_grad()
@@ -171,6 +210,9 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=4, help="epochs per mode (the first is left out of the speed)")
     ap.add_argument("--objects", type=int, default=24, help="procedural training objects per class")
     ap.add_argument("--views", type=int, default=20)
+    ap.add_argument("--repeat", type=int, default=1, help="run every mode this many times, alternating; medians")
+    ap.add_argument("--skip-options", action="store_true", help="leave out the one-step arithmetic options")
+    ap.add_argument("--options-only", action="store_true", help="only the one-step arithmetic options")
     ap.add_argument("--modes", help="comma-separated mode numbers (1-based, in the table's order); default all")
     ap.add_argument("--scaling", action="store_true", help="also peak RSS at --views and 10x --views")
     ap.add_argument("--scaling-steps", type=int, default=20)
@@ -179,6 +221,10 @@ def main() -> None:
     if "HBEO_BENCH_CHILD" in os.environ:          # a mode's child process (see run_mode)
         return child(json.loads(os.environ["HBEO_BENCH_CHILD"]))
     args = ap.parse_args()
+    if args.options_only:
+        for k, v in step_options().items():
+            print(f"  {k:48s} {v:7.1f}")
+        return
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     run = prepare(work, args.objects, args.views)
@@ -190,18 +236,28 @@ def main() -> None:
     rows = []
     print(f"cpu profile network, procedural, {args.objects * 10} objects x {args.views} views, {args.epochs} epochs; "
           f"{os.cpu_count()} cores")
-    print(f"{'mode':48s} {'images/s':>9s} {'ratio':>6s} {'peak RSS MiB':>13s} {'(sum)':>7s} {'children':>8s}")
+    print(f"{'mode':48s} {'images/s':>9s} {'ratio':>6s} {'peak RSS MiB':>13s} {'(sum)':>7s} {'+workers':>9s}")
+    runs: dict[str, list[dict]] = {n: [] for n in names}
+    for rep in range(args.repeat):                    # modes alternate, so a slow spell of the machine hits all
+        for name in names:
+            runs[name].append(run_mode(name, run, args.objects, args.views, work, epochs=args.epochs))
+            if args.repeat > 1:
+                print(f"  repeat {rep + 1}: {name}: {runs[name][-1]['images_per_s']:.0f} images/s", flush=True)
+    base = float(np.median([x["images_per_s"] for x in runs[BASELINE]]))
     for name in names:
-        r = run_mode(name, run, args.objects, args.views, work, epochs=args.epochs)
+        speeds = [x["images_per_s"] for x in runs[name]]
+        r = {**runs[name][-1], "images_per_s": float(np.median(speeds)), "images_per_s_runs": speeds,
+             "ratio": float(np.median(speeds)) / base, "ratios_per_repeat":
+             [a / b["images_per_s"] for a, b in zip(speeds, runs[BASELINE])]}
         rows.append(r)
-        base = next((x["images_per_s"] for x in rows if x["mode"] == BASELINE), None)
-        r["ratio"] = r["images_per_s"] / base if base else None
+        spread = f"  ({min(speeds):.0f}-{max(speeds):.0f})" if len(speeds) > 1 else ""
         print(f"{name:48s} {r['images_per_s']:9.0f} {r['ratio']:6.2f} {r['rss_mib']:13.0f} {r['rss_sum_mib']:7.0f} "
-              f"{r['workers_rss_mib']:8.0f}", flush=True)
-    options = step_options()
-    print("\none training step alone (no data loading), images/s:")
+              f"{r['tree_rss_mib']:9.0f}{spread}", flush=True)
+    options = {} if args.skip_options else step_options()
+    if options:
+        print("\none training step alone (no data loading), images/s:")
     for k, v in options.items():
-        print(f"  {k:40s} {v:6.0f}")
+        print(f"  {k:48s} {v:7.1f}")
     scaling = []
     if args.scaling:
         big = prepare(work, args.objects, args.views * 10)
@@ -210,7 +266,8 @@ def main() -> None:
         for name in ("memory (before: the baseline)", "shards", "stream"):
             small_r = run_mode(name, run, args.objects, args.views, work, steps=args.scaling_steps)
             big_r = run_mode(name, big, args.objects, args.views * 10, work, steps=args.scaling_steps)
-            scaling.append({"mode": name, "rss_small_mib": small_r["rss_mib"], "rss_large_mib": big_r["rss_mib"]})
+            scaling.append({"mode": name, "rss_small_mib": small_r["rss_mib"], "rss_large_mib": big_r["rss_mib"],
+                            "tree_small_mib": small_r["tree_rss_mib"], "tree_large_mib": big_r["tree_rss_mib"]})
             print(f"{name:32s} {small_r['rss_mib']:8.0f} {big_r['rss_mib']:8.0f}  "
                   f"(x{big_r['rss_mib'] / small_r['rss_mib']:.2f})", flush=True)
     if args.json:
