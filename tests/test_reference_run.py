@@ -40,8 +40,13 @@ def test_the_committed_model_reproduces_its_committed_evaluation(vox30_file, com
     a, b = got["per_query"], committed["per_query"]
     assert a["class"] == b["class"]
     assert a["pred"] == b["pred"]
-    for key in ("pose_deg", "pose_sym_deg", "iou", "naive"):
+    for key in ("iou", "naive"):
         np.testing.assert_allclose(a[key], b[key], rtol=0, atol=1e-3, err_msg=key)   # the JSON keeps 4 decimals
+    # pose: float32 network arithmetic differs in the last bits between CPUs (SIMD kernels); on this
+    # 2-core AMD EPYC 3 of 907 errors moved by up to 0.0056 degrees from the JSON's machine
+    for key in ("pose_deg", "pose_sym_deg"):
+        np.testing.assert_allclose(a[key], b[key], rtol=0, atol=0.05, err_msg=key)
+        assert np.mean(np.abs(np.array(a[key]) - b[key]) > 1e-3) < 0.01, key
     # EDT sums distances over the whole grid: one voxel at the 0.5 rebinarization threshold (BLAS summation
     # order of the run that wrote the JSON) moves it by a fraction of a per cent for one query of 907
     np.testing.assert_allclose(a["edt"], b["edt"], rtol=2e-3, err_msg="edt")

@@ -181,8 +181,10 @@ def check_mesh(vertices, faces, name=None) -> tuple[np.ndarray, np.ndarray]:
     if extent <= 0:
         raise DataError(name, "degenerate mesh: all vertices coincide")
     c = v - v.mean(axis=0)
-    s = np.sqrt(np.clip(np.linalg.eigvalsh(c.T @ c), 0, None))       # ascending singular values
-    if s[1] <= _TINY * s[2]:
+    # singular values of the centred vertices themselves (descending): through c^T c (squared) the
+    # rounding of an exact line's second value reaches ~1e-8 relative, above _TINY on some CPUs
+    s = np.linalg.svd(c / extent, compute_uv=False)
+    if s[1] <= _TINY * s[0]:
         raise DataError(name, f"degenerate mesh: all {len(v)} vertices are collinear (on one line)")
     used = v[np.unique(f)]
     if float(np.ptp(used, axis=0).max()) <= _TINY * extent:
