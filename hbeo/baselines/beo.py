@@ -52,8 +52,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from scipy import linalg
-from scipy.linalg import lapack
 from scipy.special import logsumexp
 from threadpoolctl import threadpool_limits
 
@@ -62,6 +60,7 @@ from hbeo.errors import DataError
 from hbeo.rotations import matrix_to_quaternion, super_fibonacci, uniform_so3, z_angle_to_matrix
 from hbeo.storage import read_npz, write_npz
 from hbeo.subspace.partial import iter_partial
+from hbeo.subspace.projection import MaskedProjector
 from hbeo.subspace.basis import ObjectSubspace
 
 FORMAT_VERSION = 1
@@ -157,10 +156,7 @@ class BEO:
                 "given_class": self.given_class, "ridge": self.ridge, "chunk": self.chunk}
 
     def _prepare_basis(self):
-        W = self.subspace.basis_
-        self._active = np.nonzero(np.abs(W).max(axis=1) > 0)[0]     # rows that can matter
-        self._Wa = np.ascontiguousarray(W[self._active], dtype=np.float32)       # (d_a, k)
-        self._WaT = np.ascontiguousarray(self._Wa.T)                              # (k, d_a)
+        self._projector = MaskedProjector(self.subspace.basis_)
 
     # ------------------------------------------------------------------ fit
     def fit(self, grids, labels, classes=None) -> "BEO":
@@ -253,40 +249,9 @@ class BEO:
 
     def _project(self, filled, known):
         """Partial projection of flat masks (m, d) -> coefficients (m, k) float64 and the squared
-        residual ||V W o' - w||^2 of the reconstruction on the known voxels (m,).
-
-        A = W_K^T W_K, or I - W_U^T W_U when fewer (active) voxels are unknown, as one float32
-        GEMM on the gathered columns of W^T; (A + ridge I) o' = b by Cholesky (float64). Since
-        (A + ridge I) o' = b, the residual is ||w||^2 - b^T o' - ridge ||o'||^2."""
-        WT = self._WaT
-        k, da = WT.shape
-        kn = known[:, self._active]
-        b = (filled[:, self._active].astype(np.float32) @ self._Wa).astype(np.float64)   # W^T V^T w
-        n_filled = filled.sum(axis=1)                                                    # ||w||^2, all voxels
-        n_known = kn.sum(axis=1)
-        coeffs = np.empty((len(kn), k))
-        sse = np.empty(len(kn))
-        diag = np.diag_indices(k)
-        for i in range(len(kn)):
-            if n_known[i] <= da - n_known[i]:
-                X = WT[:, kn[i]]
-                a = (X @ X.T).astype(np.float64)
-            else:
-                X = WT[:, ~kn[i]]
-                a = -(X @ X.T).astype(np.float64)
-                a[diag] += 1.0
-            a[diag] += self.ridge
-            cf, info = lapack.dpotrf(a, lower=0, clean=0, overwrite_a=1)
-            if info == 0:
-                o, info = lapack.dpotrs(cf, b[i], lower=0)
-            if info != 0:                                         # ridge 0 and a singular A
-                a = (X @ X.T).astype(np.float64)
-                if n_known[i] > da - n_known[i]:
-                    a = np.eye(k) - a
-                o = linalg.lstsq(a, b[i], check_finite=False)[0]
-            coeffs[i] = o
-            sse[i] = max(0.0, n_filled[i] - b[i] @ o - self.ridge * (o @ o))
-        return coeffs, sse
+        residual ||V W o' - w||^2 of the reconstruction on the known voxels (m,): ``(A + ridge I) o' = b``
+        (:class:`hbeo.subspace.projection.MaskedProjector`)."""
+        return self._projector.project(filled, known, precision=self.ridge)
 
     def candidates(self, R_true, pose: str = "known", rng=None) -> np.ndarray:
         """Candidate rotations (M, 3, 3) object -> camera for a pose mode (see the module docstring)."""

@@ -73,6 +73,10 @@ class Prediction:
     timing_ms: dict = field(default_factory=dict)   #: per stage, whole batch
     warnings: list = field(default_factory=list)    #: (B,) lists of str: why an image's answer is doubtful
     low_confidence: np.ndarray | None = None        #: (B,) bool: the image has warnings (None: no checks run)
+    #: rotation-bins models: (B, N) the network's distribution over its rotation grid (model's virtual
+    #: camera, averaged over rolls); None for regression heads
+    pose_probs: np.ndarray | None = None
+    view_rotation: np.ndarray | None = None         #: (B, 3, 3) Q: virtual camera -> user camera
 
     def to_dict(self, i: int = 0) -> dict:
         """JSON-ready summary of image ``i``."""
@@ -185,12 +189,16 @@ class HBEO:
         out = {k: v.float().view(rolls, len(views), -1) for k, v in self._net(x).items()}
         t2 = time.perf_counter()
         probs = torch.softmax(out["logits"], dim=2).mean(0).numpy()
+        pose_probs = None
         if rolls == 1:
             R_virtual = self.net.pose_matrix(out["pose"][0].double()).numpy()
+            if self.net.cfg.rotation == "bins":
+                pose_probs = torch.softmax(out["pose"][0].double(), dim=1).numpy()
         else:
             p = torch.softmax(out["pose"].double(), dim=2)
             P = sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(angles)) / rolls
             R_virtual = self.net.pose_matrix(torch.log(P.clamp_min(1e-300))).numpy()
+            pose_probs = P.numpy()
         out["coeffs"] = out["coeffs"].mean(0)
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
@@ -205,7 +213,7 @@ class HBEO:
         return Prediction(probs, labels, [self.classes[i] for i in labels], R, matrix_to_axis_angle(R), trans,
                           scale, coeffs, grids, {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
                                                  "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3},
-                          warns, np.array([bool(w) for w in warns]))
+                          warns, np.array([bool(w) for w in warns]), pose_probs, Q)
 
     def _check_view(self, v: View, index: int | None) -> list[str]:
         """Warnings (list of str) for one image's model view; DataError when the network's input

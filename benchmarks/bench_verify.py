@@ -1,0 +1,99 @@
+"""Predict -> verify (issue 16, groundwork): where the verify step's gain is lost, on real views.
+
+For the committed real-data model (`results/cpu-modelnet10-vox30/model.hbeo`, axis-angle head) and
+``--per-class`` ModelNet10 validation objects per class (held out of the model's training, from the
+training split; one view each, the model's render settings; an exploration, no setting is chosen
+here, and the test split is not touched), prints mean
+completion IoU (threshold 0.5) of:
+
+- HBEO alone;
+- verify (:class:`hbeo.model.verify.Verifier`, one rotation, class density off) at the *true*
+  rotation and translation: what MAP completion from the carved depth gives when the pose is right;
+- the same at the true rotation with HBEO's translation estimate, after translation-only ICP onto
+  the class mean shape (:func:`hbeo.model.verify.refine_translation`), and after that plus a search of
+  9 offsets along the viewing ray scored by verify's own posterior;
+
+with the translation errors (median, metres; along the ray: signed median), class accuracy with
+the class density on at the true pose, and verify's time per query.
+
+Usage: python benchmarks/bench_verify.py [--per-class 4]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--per-class", type=int, default=4)
+    args = ap.parse_args()
+    from hbeo import config, conventions as C
+    from hbeo.data import datasets
+    from hbeo.data.gridset import record_grid
+    from hbeo.model.inference import HBEO
+    from hbeo.model.verify import Verifier, VerifyConfig, refine_translation
+    from hbeo.render.datasets import split_objects
+    from hbeo.render.views import ObjectViews, RenderSettings
+    from hbeo.subspace.metrics import iou
+    m = HBEO.load(ROOT / "results/cpu-modelnet10-vox30/model.hbeo")
+    ds = datasets.get_dataset("modelnet10-vox30", profile=config.get_profile("cpu"))
+    # the validation objects the model was trained without (split_objects over the training records,
+    # as training_data splits them), not test objects: later choices of verify's settings are made here
+    prof = config.get_profile("cpu")
+    train = datasets.select(ds, "train", prof)
+    held = split_objects([ds.classes.index(r.cls) for r in train], 0.1, 0)
+    recs = [r for c in ds.classes for r in [x for x, h in zip(train, held) if h and x.cls == c][:args.per_class]]
+    views = ObjectViews(replace(RenderSettings.from_dict(m.settings["render"]), views_per_object=1))
+    plain = Verifier(m, VerifyConfig(rotations=1, class_weight=0.0))
+    with_class = Verifier(m, VerifyConfig(rotations=1, class_weight=1.0))
+    rows = {k: [] for k in ("hbeo", "true pose", "estimated t", "ICP t", "ICP + ray search t")}
+    terr = {k: [] for k in ("estimated t", "ICP t", "ICP + ray search t")}
+    along, acc_hbeo, acc_class, ms = [], [], [], []
+    for i, r in enumerate(recs):
+        a = views.views(r, i, ds.classes.index(r.cls), "train", 0)
+        d, K, truth = a["depth"][0].astype(np.float32), m.intrinsics, record_grid(r)
+        p = m.predict(d, K)
+        R, t_true = a["rotation"][:1].astype(np.float64), a["translation"][0].astype(np.float64)
+        pts, _ = C.backproject(d, K)
+        mean_shape = m.subspace.class_means_[m.subspace.classes_.index(m.classes[p.labels[0]])].reshape((30,) * 3) >= 0.5
+        t_icp = refine_translation(pts, R[0], p.translation[0], mean_shape, m.settings["object_size"])
+        u = t_icp / np.linalg.norm(t_icp)
+        t0 = time.perf_counter()
+        cands = [(plain.verify(d, K, replace(p, rotation=R, translation=(t_icp + s * u)[None])), t_icp + s * u)
+                 for s in np.linspace(-0.3, 0.3, 9)]
+        best, t_search = max(cands, key=lambda x: x[0]["score"])
+        ms.append((time.perf_counter() - t0) * 1e3 / len(cands))
+        ts = {"true pose": t_true, "estimated t": p.translation[0], "ICP t": t_icp}
+        rows["hbeo"].append(iou(truth, p.grids[0]))
+        for k, t in ts.items():
+            rows[k].append(iou(truth, plain.verify(d, K, replace(p, rotation=R, translation=t[None]))["grid"]))
+        rows["ICP + ray search t"].append(iou(truth, best["grid"]))
+        for k, t in (("estimated t", p.translation[0]), ("ICP t", t_icp), ("ICP + ray search t", t_search)):
+            terr[k].append(float(np.linalg.norm(t - t_true)))
+        e = p.translation[0] - t_true
+        along.append(float(e @ (p.translation[0] / np.linalg.norm(p.translation[0]))))
+        acc_hbeo.append(p.class_names[0] == r.cls)
+        x = with_class.verify(d, K, replace(p, rotation=R, translation=t_true[None]))
+        acc_class.append(m.classes[x["label"]] == r.cls)
+    views.close()
+    print(f"{len(recs)} ModelNet10 validation objects (<= {args.per_class} per class), one view each; committed "
+          f"model.hbeo")
+    print("mean completion IoU:")
+    for k, v in rows.items():
+        extra = f"   translation error median {np.median(terr[k]):.3f} m" if k in terr else ""
+        print(f"  {k:28s} {np.mean(v):.3f}{extra}")
+    print(f"HBEO's translation estimate, signed error along the viewing ray: median {np.median(along):+.3f} m")
+    print(f"class accuracy: HBEO {np.mean(acc_hbeo):.3f}; verify with the class density at the true pose "
+          f"{np.mean(acc_class):.3f}")
+    print(f"verify, one rotation x 3 classes: {np.median(ms):.1f} ms per hypothesis rotation (median)")
+
+
+if __name__ == "__main__":
+    main()
