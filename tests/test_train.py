@@ -9,33 +9,14 @@ from hbeo.errors import DataError
 from hbeo.model.fit import HBEONetTask
 from hbeo.model.network import LossWeights, NetConfig
 from hbeo.model.train import TrainConfig, load_checkpoint, lr_at, train
-from hbeo.rotations import matrix_to_axis_angle, uniform_so3
+from hbeo.rotations import uniform_so3
 from hbeo.rundir import CHECKPOINT, TRAIN_LOG as LOG
+from resume_job import Blobs
 
 CFG = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=4, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16))
 
 
-class Toy(torch.utils.data.Dataset):
-    """Class = which quadrant holds the blob; easy enough to beat chance in two epochs."""
-
-    def __init__(self, n, seed):
-        rng = np.random.default_rng(seed)
-        self.labels = rng.integers(0, 3, n)
-        self.R = uniform_so3(n, rng).astype(np.float32)
-        self.depth = np.zeros((n, 1, 16, 16), np.float32)
-        for i, c in enumerate(self.labels):
-            r0, c0 = [(2, 2), (2, 9), (9, 5)][c]
-            self.depth[i, 0, r0:r0 + 5, c0:c0 + 5] = 1.5 + 0.1 * rng.random()
-        self.coeffs = rng.normal(size=(n, 4)).astype(np.float32)
-
-    def __len__(self):
-        return len(self.labels)
-
-    def __getitem__(self, i):
-        return {"depth": torch.from_numpy(self.depth[i]), "label": int(self.labels[i]),
-                "rotation": torch.from_numpy(self.R[i]),
-                "axis_angle": torch.tensor(matrix_to_axis_angle(self.R[i]), dtype=torch.float32),
-                "coeffs": torch.from_numpy(self.coeffs[i])}
+Toy = Blobs     # class = which quadrant holds the blob; easy enough to beat chance in two epochs
 
 
 def weights(net):
