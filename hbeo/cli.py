@@ -275,7 +275,7 @@ def cmd_evaluate(args) -> int:
         raise HBEOError(f"--dataset {args.dataset}: classes {', '.join(unknown)} are unknown to the model "
                         f"{args.model} (it knows {', '.join(model.classes)})")
     method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
-                                                            progress=not args.quiet)
+                                                            progress=not args.quiet, max_steps=args.max_steps)
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
                              noise=args.noise, per_class=args.per_class, progress=not args.quiet,
                              method=method, pose=pose, rolls=args.rolls)
@@ -450,6 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="HBEO test-time augmentation: average over this many camera rolls (bins models; 1 = off)")
     p.add_argument("--method", choices=("hbeo", "beo", "icp", "voxcnn"), default="hbeo",
                    help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
+    p.add_argument("--max-steps", type=int,
+                   help="voxcnn: when it must be trained first, stop after this many optimizer steps")
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")

@@ -159,3 +159,15 @@ def test_train_max_steps_stops_early_and_writes_a_normal_model(trained, tmp_path
     header, rows = log[0].split(","), [r.split(",") for r in log[1:]]
     assert len(rows) == 1 and int(rows[0][header.index("step")]) == 2, log
     assert HBEO.load(rd.model_file("model_steps.hbeo")).net.n_params() > 0
+
+
+def test_evaluate_max_steps_bounds_the_3d_cnn_it_trains(ci_model, copy_run, tmp_path):
+    """Every training command takes --max-steps: the 3-D CNN is trained by evaluate when missing."""
+    import pandas as pd
+    from hbeo.rundir import RunDir
+    rd = copy_run(ci_model.parent, tmp_path / "run")
+    out = run("evaluate", "--model", str(rd.model), "--method", "voxcnn", "--max-steps", "3", "--dataset",
+              "procedural", "--per-class", "1", "--out", str(tmp_path / "v.json"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    log = pd.read_csv(RunDir(rd.path).train_log(rd.baseline("voxcnn")))
+    assert log.step.iloc[-1] == 3 and rd.baseline("voxcnn").is_file()

@@ -54,10 +54,10 @@ def check_method(method: str, pose: str | None) -> str:
     return pose
 
 
-def load_method(method: str, run, profile="cpu", progress: bool = True):
+def load_method(method: str, run, profile="cpu", progress: bool = True, max_steps: int | None = None):
     """The baseline ``method`` of run folder ``run`` (a RunDir or a path): loaded from its file, or
-    fitted on the run's training grids (``beo``, ``icp``) or trained on its rendered set (``voxcnn``)
-    and saved first."""
+    fitted on the run's training grids (``beo``, ``icp``) or trained on its rendered set (``voxcnn``;
+    ``max_steps`` ends its training after that many optimizer steps) and saved first."""
     check_method(method, None)
     if method == "hbeo":
         raise ValueError("hbeo is the model itself: pass method=None to evaluate_model")
@@ -67,7 +67,7 @@ def load_method(method: str, run, profile="cpu", progress: bool = True):
         from hbeo.baselines.voxcnn import VoxCNNBaseline, train_voxcnn
         if path.exists():
             return _named(VoxCNNBaseline.load(path), method)
-        return _named(train_voxcnn(run, profile, progress=progress), method)
+        return _named(train_voxcnn(run, profile, progress=progress, max_steps=max_steps), method)
     from hbeo.baselines.beo import BEO
     from hbeo.baselines.icp import ICPBaseline
     from hbeo.data.gridset import GridSet
