@@ -257,7 +257,7 @@ def cmd_predict(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.reproduction.evaluate import evaluate_model, split_records
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.model.inference import HBEO
     from hbeo.storage import check_outputs
@@ -270,7 +270,7 @@ def cmd_evaluate(args) -> int:
     profile = model.settings.get("profile", "cpu")
     ds = _load_dataset(args.dataset, profile)
     # before any baseline is fitted or view rendered (evaluate_model checks the same)
-    unknown = sorted({r.cls for r in ds.records(split=args.split, per_class=args.per_class)} - set(model.classes))
+    unknown = sorted({r.cls for r in split_records(ds, args.split, args.per_class, profile)} - set(model.classes))
     if unknown:
         raise HBEOError(f"--dataset {args.dataset}: classes {', '.join(unknown)} are unknown to the model "
                         f"{args.model} (it knows {', '.join(model.classes)})")
@@ -281,6 +281,9 @@ def cmd_evaluate(args) -> int:
                              method=method, pose=pose, rolls=args.rolls)
     metrics["model"] = str(args.model)
     _write_json(args.out, metrics)
+    if args.split == "val":
+        from hbeo.reproduction.protocol import record_validation
+        record_validation(RunDir(Path(args.model).parent), args.model, model, metrics)
     status = _report_failures(RunDir(Path(args.model).parent), "evaluate", metrics["failures"],
                               metrics["n_objects"] + len(metrics["failures"]), args.strict, [args.split])
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
@@ -455,7 +458,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")
-    p.add_argument("--split", choices=("train", "test"), default="test")
+    p.add_argument("--split", choices=("train", "test", "val"), default="test",
+                   help="test (default); val: the training objects that training held out, where choices are made "
+                        "(each evaluation is added to validation.csv beside the model)")
     p.add_argument("--views", type=int, default=1, help="views per object (1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sampler", choices=("so3", "upright"), help="viewpoints (default: the model's training sampler)")

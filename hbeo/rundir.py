@@ -156,6 +156,11 @@ class RunDir:
         """The training folder (checkpoint, log) of the model written to ``model_file``."""
         return self.path / f"train_{Path(model_file).stem}"
 
+    @property
+    def validation_log(self) -> Path:
+        """``validation.csv``: one row per ``evaluate --split val`` of a model in this folder."""
+        return self.path / "validation.csv"
+
     def checkpoint(self, model_file: str | os.PathLike) -> Path:
         return self.training(model_file) / CHECKPOINT
 

@@ -171,3 +171,31 @@ def test_evaluate_max_steps_bounds_the_3d_cnn_it_trains(ci_model, copy_run, tmp_
     assert out.returncode == 0, out.stderr
     log = pd.read_csv(RunDir(rd.path).train_log(rd.baseline("voxcnn")))
     assert log.step.iloc[-1] == 3 and rd.baseline("voxcnn").is_file()
+
+
+def test_evaluate_on_the_validation_split_scores_held_out_training_objects_and_logs_them(ci_model, copy_run,
+                                                                                        tmp_path):
+    """The validation protocol: ``--split val`` scores the training objects that training held out
+    (fixed, seeded, per class), never test objects, and every evaluation leaves a row."""
+    import pandas as pd
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.model.fit import training_data, ViewOptions
+    from hbeo.rundir import RunDir
+    rd = copy_run(ci_model.parent, tmp_path / "run")
+    for seed in (0, 1):
+        out = run("evaluate", "--model", str(rd.model), "--split", "val", "--seed", str(seed), "--dataset",
+                  "procedural", "--out", str(tmp_path / f"val{seed}.json"), "--quiet")
+        assert out.returncode == 0, out.stderr
+    m = json.loads((tmp_path / "val0.json").read_text())
+    ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
+    val = datasets.validation_records(ds, "ci")
+    assert m["split"] == "val" and m["n_queries"] == len(val) == 10            # one object per class of 6
+    assert {r.split for r in val} == {"train"}
+    # the same objects the training held out of the run's rendered set
+    data = training_data(rd, ViewOptions(), progress=False)
+    held = {data.manifest.object_ids[p] for p in np.unique(data.manifest.image_objects()[data.val.indices])}
+    assert held == {r.id for r in val}
+    log = pd.read_csv(RunDir(rd.path).validation_log)
+    assert list(log.seed) == [0, 1] and set(log.model) == {"model.hbeo"} and (log.n_queries == 10).all()
+    assert log.accuracy.iloc[0] == m["accuracy"]

@@ -312,3 +312,45 @@ def select(dataset: Dataset, split: str, profile=None) -> list[ObjectRecord]:
     prof = config.get_profile(profile) if profile is not None else None
     n = None if prof is None else (prof.n_train_per_class if split == "train" else prof.n_test_per_class)
     return dataset.records(split=split, per_class=n)
+
+# --------------------------------------------------------------------------- the validation split
+
+#: The validation protocol: this fraction of each class's training objects (at least one of a
+#: class with two or more), drawn with this seed, is held out of training (HBEONet's
+#: :func:`hbeo.model.fit.training_data`) and is where configurations, epochs and thresholds are
+#: chosen (``python -m hbeo evaluate --split val``); the test split is for reporting only.
+VAL_FRACTION, VAL_SEED = 0.1, 0
+
+
+def split_objects(labels, val_fraction: float = 0.1, seed: int = 0) -> np.ndarray:
+    """Which objects (class index per object, (n,)) go to validation, a bool mask (n,): the rule of
+    :func:`split_by_object`, for a rendered set's objects or a record list alike."""
+    if not 0 <= val_fraction < 1:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    labels = np.asarray(labels)
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    val = np.zeros(len(labels), bool)
+    for c in np.unique(labels):
+        objs = np.flatnonzero(labels == c)
+        k = int(round(val_fraction * len(objs)))
+        if val_fraction > 0 and len(objs) >= 2:
+            k = min(max(k, 1), len(objs) - 1)
+        val[rng.permutation(objs)[:k]] = True
+    return val
+
+
+def validation_records(dataset: "Dataset", profile=None, per_class: int | None = None) -> list[ObjectRecord]:
+    """The training split's objects that training holds out (:data:`VAL_FRACTION`, :data:`VAL_SEED`,
+    by class, from :func:`select`'s training records of ``profile``), in that order; the first
+    ``per_class`` of each class when given. Their ``split`` stays ``"train"``."""
+    train = select(dataset, "train", profile)
+    held = split_objects([dataset.classes.index(r.cls) for r in train], VAL_FRACTION, VAL_SEED)
+    out = [r for r, h in zip(train, held) if h]
+    if per_class is None:
+        return out
+    kept, counts = [], {}
+    for r in out:
+        if counts.get(r.cls, 0) < per_class:
+            kept.append(r)
+            counts[r.cls] = counts.get(r.cls, 0) + 1
+    return kept

@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 from hbeo import config
 from hbeo.errors import DataError
 from hbeo.data import datasets
+from hbeo.data.datasets import VAL_SEED
 from hbeo.data.gridset import run_gridsets
 from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.inference import HBEO
@@ -237,11 +238,14 @@ def _shard_coeff_stats(m: Manifest, progress: bool) -> tuple[np.ndarray, np.ndar
     return mean.astype(np.float32), (np.sqrt(np.maximum(s2 / n - mean * mean, 0)) + 1e-6).astype(np.float32)
 
 
-def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int = 0, augment_roll: bool = False,
+def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_roll: bool = False,
                   progress: bool = True, source: str = "memory", dataset: str | None = None, profile=None,
                   settings: RenderSettings | None = None) -> TrainingData:
     """The run's training images as (training, validation) datasets of the same items, split by
-    object (:func:`hbeo.render.datasets.split_by_object`); ``augment_roll`` rolls every training
+    object (:func:`hbeo.render.datasets.split_by_object` with the fixed
+    :data:`hbeo.data.datasets.VAL_SEED`, whatever the training seed: with the default
+    ``val_fraction`` the validation objects are :func:`hbeo.data.datasets.validation_records`, on
+    which ``evaluate --split val`` scores); ``augment_roll`` rolls every training
     view by a random angle each time it is read (:mod:`hbeo.model.augment`). ``source``:
 
     ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
@@ -257,7 +261,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
     run = RunDir.of(run)
     if source == "memory":
         data = ViewArrays(run.renders("train"), view, progress=progress)
-        tr_idx, va_idx = split_by_object(data.manifest, val_fraction, seed)
+        tr_idx, va_idx = split_by_object(data.manifest, val_fraction, VAL_SEED)
         train_set = Subset(data, tr_idx)
         if augment_roll:
             train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
@@ -267,7 +271,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
         shards = DepthShards(run.renders("train"), cache_shards=SHARD_MIX)
         m = shards.manifest
         mean, std = _shard_coeff_stats(m, progress)
-        tr_idx, va_idx = split_by_object(m, val_fraction, seed)
+        tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED)
         K = m.settings.intrinsics
 
         def order(seed_, epoch):
@@ -287,7 +291,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, seed: int =
         coeffs = np.concatenate([sub.project(grids[i:i + 512]) for i in range(0, len(grids), 512)])
         mean, std = coeffs.mean(0), coeffs.std(0) + 1e-6
         records = datasets.select(ds, "train", prof)
-        val = split_objects([ds.classes.index(r.cls) for r in records], val_fraction, seed)
+        val = split_objects([ds.classes.index(r.cls) for r in records], val_fraction, VAL_SEED)
         K = settings.intrinsics
         train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
@@ -333,7 +337,7 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
             raise DataError(run.renders("train"), f"rendered with another subspace than {run.subspace}; render it "
                                                   f"again (notebook 03)")
     settings = settings or RenderSettings.from_profile(prof)
-    data = training_data(run, view, val_fraction, seed, augment_roll, progress, source, dataset, prof, settings)
+    data = training_data(run, view, val_fraction, augment_roll, progress, source, dataset, prof, settings)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
                     conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
                     normalization=normalization)

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset as TorchDataset, IterableDataset, Sampler, get_worker_info
 
+from hbeo.data.datasets import split_objects
 from hbeo.errors import DataError
 from hbeo.render.renderset import SHARD_KEYS, Manifest
 from hbeo.render.views import SPLIT_CODES, ObjectViews, RenderSettings, _split_code
@@ -144,23 +145,6 @@ def split_by_object(manifest, val_fraction: float = 0.1, seed: int = 0) -> tuple
     img_obj = m.image_objects()
     idx = np.arange(len(img_obj), dtype=np.int64)
     return idx[~val[img_obj]], idx[val[img_obj]]
-
-
-def split_objects(labels, val_fraction: float = 0.1, seed: int = 0) -> np.ndarray:
-    """Which objects (class index per object, (n,)) go to validation, a bool mask (n,): the rule of
-    :func:`split_by_object`, for a rendered set's objects or a record list alike."""
-    if not 0 <= val_fraction < 1:
-        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
-    labels = np.asarray(labels)
-    rng = np.random.default_rng([int(seed), 0x5EED])
-    val = np.zeros(len(labels), bool)
-    for c in np.unique(labels):
-        objs = np.flatnonzero(labels == c)
-        k = int(round(val_fraction * len(objs)))
-        if val_fraction > 0 and len(objs) >= 2:
-            k = min(max(k, 1), len(objs) - 1)
-        val[rng.permutation(objs)[:k]] = True
-    return val
 
 
 class ShardSampler(Sampler):

@@ -36,7 +36,8 @@ from hbeo.render.poses import SAMPLERS, ViewSampler
 from hbeo.rotations import matrix_to_axis_angle
 
 BACKENDS = ("auto", "pyrender", "embree")
-SPLIT_CODES = {"train": 0, "test": 1}
+#: random-stream codes: a rendered split, and "val" for the query views of validation objects (from "train")
+SPLIT_CODES = {"train": 0, "test": 1, "val": 2}
 
 
 # --------------------------------------------------------------------------- settings

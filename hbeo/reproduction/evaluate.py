@@ -67,7 +67,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
 
     Views come from :class:`hbeo.render.views.ObjectViews` with the model's render settings, ``views``
     per object, ``seed``, ``noise`` and (if given) ``sampler``: object i of the split gets the same
-    random stream a rendered set of that split would give it.
+    random stream a rendered set of that split would give it. ``split``: ``train``, ``test`` or
+    ``val`` (:func:`split_records`; its views have a random stream of their own).
 
     ``method``: None for the HBEO ``model`` itself, or a baseline (:mod:`hbeo.baselines.methods`) whose
     ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true, rng)`` answers
@@ -85,7 +86,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     classes = tuple(model.classes)
     means = class_mean_grids(model.subspace) if getattr(model, "subspace", None) is not None else None
     name, pose = ("hbeo", "3dof") if method is None else (method.name, pose or method.default_pose)
-    records = dataset.records(split=split, per_class=per_class)
+    records = split_records(dataset, split, per_class, model.settings.get("profile"))
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
     if unknown := sorted({r.cls for r in records} - set(classes)):
@@ -148,6 +149,16 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     precision = getattr(model, "precision", "float32") if method is None else None
     return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
             "rolls": rolls if method is None else None, **out}
+
+
+def split_records(dataset, split: str, per_class: int | None = None, profile=None) -> list:
+    """The objects an evaluation of ``split`` scores: the dataset's ``train`` or ``test`` records, or
+    for ``val`` the training objects that training holds out (:func:`hbeo.data.datasets.validation_records`
+    of the model's ``profile``), the first ``per_class`` of each class when given."""
+    if split == "val":
+        from hbeo.data.datasets import validation_records
+        return validation_records(dataset, profile, per_class)
+    return dataset.records(split=split, per_class=per_class)
 
 
 def _name(record) -> str:

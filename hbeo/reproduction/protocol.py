@@ -17,6 +17,7 @@ May import: foundation, data, render, model, baselines and :mod:`hbeo.reproducti
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 
@@ -136,3 +137,27 @@ def sample_completions(run, dataset: str, profile, n: int = 6, seed: int = SEED)
                     "hbeo_class": p.class_names[0], "beo": b["grid"],
                     "beo_class": model.classes[int(np.argmax(b["probabilities"]))]})
     return out
+
+
+def record_validation(run, model_path, model, metrics: dict) -> dict:
+    """Add one row to the run's ``validation.csv`` (:attr:`RunDir.validation_log`): when, which model
+    file (name, sha256, rotation head, roll augmentation), how it was evaluated and its validation
+    scores; the file is rewritten atomically. Every configuration tried is meant to leave its row,
+    so a choice made on validation can be checked against all the others. Returns the row."""
+    import datetime
+    import pandas as pd
+    run = RunDir.of(run)
+    pe = metrics["pose_error_deg"]
+    row = {"time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+           "model": os.path.basename(str(model_path)), "model_sha256": sha256_file(model_path)[:16],
+           "rotation_head": model.net.cfg.rotation, "augment_roll": bool(model.settings.get("augment_roll", False)),
+           "method": metrics["method"], "pose": metrics["pose"], "rolls": metrics.get("rolls"),
+           "views": metrics["views"], "seed": metrics["seed"], "n_objects": metrics["n_objects"],
+           "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"], "pose_median_deg": pe["median"],
+           "pose_median_sym_deg": pe["median_sym"], "within_30": pe["within_30"],
+           "iou": metrics["completion"]["iou"]}
+    path = run.validation_log
+    old = pd.read_csv(path) if path.exists() else pd.DataFrame()
+    table = pd.concat([old, pd.DataFrame([row])], ignore_index=True)
+    atomic_text(path, table.to_csv(index=False))
+    return row
