@@ -51,8 +51,8 @@ def main() -> None:
     held = split_objects([ds.classes.index(r.cls) for r in train], 0.1, 0)
     recs = [r for c in ds.classes for r in [x for x, h in zip(train, held) if h and x.cls == c][:args.per_class]]
     views = ObjectViews(replace(RenderSettings.from_dict(m.settings["render"]), views_per_object=1))
-    plain = Verifier(m, VerifyConfig(rotations=1, class_weight=0.0))
-    with_class = Verifier(m, VerifyConfig(rotations=1, class_weight=1.0))
+    plain = Verifier(m, VerifyConfig(rotations=1, class_weight=0.0, refine_translation=False))
+    with_class = Verifier(m, VerifyConfig(rotations=1, class_weight=1.0, refine_translation=False))
     rows = {k: [] for k in ("hbeo", "true pose", "estimated t", "ICP t", "ICP + ray search t")}
     terr = {k: [] for k in ("estimated t", "ICP t", "ICP + ray search t")}
     along, acc_hbeo, acc_class, ms = [], [], [], []

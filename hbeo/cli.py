@@ -276,9 +276,15 @@ def cmd_evaluate(args) -> int:
                         f"{args.model} (it knows {', '.join(model.classes)})")
     method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
                                                             progress=not args.quiet, max_steps=args.max_steps)
+    verify = None
+    if args.verify:
+        if method is not None:
+            raise HBEOError("--verify applies to --method hbeo (HBEO's own answers), not to a baseline")
+        from hbeo.model.verify import VerifyConfig
+        verify = VerifyConfig()
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
                              noise=args.noise, per_class=args.per_class, progress=not args.quiet,
-                             method=method, pose=pose, rolls=args.rolls)
+                             method=method, pose=pose, rolls=args.rolls, verify=verify)
     metrics["model"] = str(args.model)
     _write_json(args.out, metrics)
     if args.split == "val":
@@ -455,6 +461,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
     p.add_argument("--max-steps", type=int,
                    help="voxcnn: when it must be trained first, stop after this many optimizer steps")
+    p.add_argument("--verify", action="store_true",
+                   help="hbeo: verify each answer against the depth (hbeo.model.verify; work in progress, issue 16)")
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")

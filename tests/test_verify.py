@@ -94,7 +94,8 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
     truth = record_grid(rec)
     at_truth = replace(pred, rotation=a["rotation"][:1].astype(np.float64),
                        translation=a["translation"][:1].astype(np.float64))
-    out = Verifier(model, VerifyConfig(rotations=1, class_weight=0.0)).verify(d, model.intrinsics, at_truth)
+    out = Verifier(model, VerifyConfig(rotations=1, class_weight=0.0, refine_translation=False)).verify(
+        d, model.intrinsics, at_truth)
     assert iou(truth, out["grid"]) > iou(truth, pred.grids[0]) + 0.1
     assert out["n_hypotheses"] == 3 and out["probabilities"].sum() == pytest.approx(1.0)
     # a regression head's modes: the regressed rotation and its turns about the up axis
@@ -104,3 +105,18 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
     np.testing.assert_allclose(geodesic_deg(Rs[0], Rs[2]), 180, atol=1e-6)
     q = v.apply(d, model.intrinsics, pred)
     assert q.grids.shape == pred.grids.shape and "verify" in q.timing_ms
+
+
+def test_evaluate_with_verify_reports_its_settings_and_refuses_baselines(model_and_view):
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.reproduction.evaluate import evaluate_model
+    model = model_and_view[0]
+    ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
+    plain = evaluate_model(model, ds, per_class=1, progress=False)
+    out = evaluate_model(model, ds, per_class=1, progress=False, verify=VerifyConfig())
+    assert plain["verify"] is None and out["verify"] == VerifyConfig().to_dict()
+    assert out["n_queries"] == plain["n_queries"] == 10
+    assert out["runtime_ms"]["median_per_query"] > plain["runtime_ms"]["median_per_query"]   # verify is timed
+    with pytest.raises(ValueError, match="verify applies to HBEO"):
+        evaluate_model(model, ds, per_class=1, progress=False, verify=VerifyConfig(), method=object())

@@ -14,7 +14,9 @@ For one query (a depth image, the :class:`~hbeo.model.inference.Prediction` of
    2 pi j / ``rotations`` about the object's up axis (+z), the flips one regressed answer cannot
    resolve, equally weighted. The translation is the model's estimate of the object centre.
 2. **Carving.** The depth image becomes known-filled / known-empty / unknown voxels at each
-   rotation (:func:`hbeo.subspace.partial.iter_partial`), surface points beyond the grid counted.
+   rotation (:func:`hbeo.subspace.partial.iter_partial`), surface points beyond the grid counted,
+   at the model's centre estimate moved by translation-only ICP onto the most probable class's
+   mean shape at that rotation (:func:`refine_translation`; ``refine_translation=False``: as estimated).
 3. **MAP completion.** For each (class c, rotation r) the coefficients o minimize
    ``||V W o - w||^2 / (2 s^2)`` (the observed voxels, ``s^2 = noise_var``) plus two Gaussian
    priors: the network's guess, N(o_net, diag((prior_scale * std)^2)) with std the training
@@ -44,7 +46,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.special import logsumexp
 from threadpoolctl import threadpool_limits
 
-from hbeo.conventions import Intrinsics
+from hbeo.conventions import Intrinsics, backproject
 from hbeo.model.network import bin_cosines
 from hbeo.rotations import matrix_to_axis_angle, project_to_so3, z_angle_to_matrix
 from hbeo.subspace.partial import iter_partial
@@ -62,6 +64,7 @@ class VerifyConfig:
     prior_scale: float = 1.0      #: the network prior's std, in training coefficient stds
     class_weight: float = 1.0     #: weight of the class density (0: network prior only)
     net_weight: float = 1.0       #: weight of the network's log probabilities
+    refine_translation: bool = True   #: ICP the model's centre estimate onto the top class's mean shape, per rotation
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -154,8 +157,8 @@ class Verifier:
 
     def verify(self, depth: np.ndarray, intrinsics: Intrinsics, pred, i: int = 0) -> dict:
         """Verify query ``i`` of ``pred`` (made from ``depth`` (H, W) metres with ``intrinsics``).
-        Returns {"probabilities" (C,), "label", "rotation" (3, 3), "coeffs" (k,), "grid" (30^3 bool),
-        "score", "n_hypotheses", "ms"}."""
+        Returns {"probabilities" (C,), "label", "rotation" (3, 3), "translation" (3,), "coeffs" (k,),
+        "grid" (30^3 bool), "score", "n_hypotheses", "ms"}."""
         t0 = time.perf_counter()
         cfg, model = self.cfg, self.model
         s2 = cfg.noise_var
@@ -167,8 +170,17 @@ class Verifier:
         size = model.settings["object_size"] * float(pred.scale[i])
         scores = np.full((len(Rs), len(top)), -np.inf)
         coeffs = np.zeros((len(Rs), len(top), self.k))
+        ts = np.repeat(np.asarray(pred.translation[i], np.float64)[None], len(Rs), axis=0)
+        if cfg.refine_translation:
+            sub = model.subspace
+            res = round(sub.basis_.shape[0] ** (1 / 3))
+            shape = sub.class_means_[sub.classes_.index(model.classes[top[0]])].reshape((res,) * 3) >= 0.5
+            pts, _ = backproject(np.asarray(depth), intrinsics)
+            ts = np.stack([refine_translation(pts, R, ts[0], shape, size) for R in Rs])
         with threadpool_limits(1, user_api="blas"):
-            for a, f, kn, outside in iter_partial(depth, intrinsics, Rs, pred.translation[i], size, chunk=len(Rs)):
+            for r0 in range(len(Rs)):
+                _, f, kn, outside = next(iter_partial(depth, intrinsics, Rs[r0:r0 + 1], ts[r0], size, chunk=1))
+                a = r0                                       # this rotation's row of the score table
                 A, b, nf = self.projector.normal_equations(f, kn)
                 for r in range(len(f)):
                     for ci, c in enumerate(top):
@@ -189,7 +201,8 @@ class Verifier:
         out_probs = np.exp(best - logsumexp(best))
         o = coeffs[r, ci].astype(np.float32)
         grid = model.subspace.reconstruct(o[None], threshold=0.5)[0]
-        return {"probabilities": out_probs, "label": int(top[ci]), "rotation": Rs[r], "coeffs": o, "grid": grid,
+        return {"probabilities": out_probs, "label": int(top[ci]), "rotation": Rs[r], "translation": ts[r],
+                "coeffs": o, "grid": grid,
                 "score": float(scores[r, ci]), "n_hypotheses": int(scores.size),
                 "ms": (time.perf_counter() - t0) * 1e3}
 
@@ -202,6 +215,7 @@ class Verifier:
         R = np.stack([x["rotation"] for x in res])
         labels = np.array([x["label"] for x in res])
         return replace(pred, probabilities=np.stack([x["probabilities"] for x in res]), labels=labels,
+                       translation=np.stack([x["translation"] for x in res]),
                        class_names=[self.model.classes[j] for j in labels], rotation=R,
                        axis_angle=matrix_to_axis_angle(R), coeffs=np.stack([x["coeffs"] for x in res]),
                        grids=np.stack([x["grid"] for x in res]),

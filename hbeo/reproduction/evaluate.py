@@ -8,7 +8,8 @@ Keys of the returned dict (stable; the evaluation notebooks and outside checks r
 the method had to estimate), ``given_class`` (the true class was given: accuracy is then 1 by
 construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
 the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines),
-``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``,
+``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``, ``verify`` (HBEO's
+verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
 or predicted, ``{file, reason, step, object, split}``: left out, the others still scored)
 ``accuracy``                         fraction of queries with the right class
@@ -62,7 +63,7 @@ def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> 
 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
                    noise: bool = False, per_class: int | None = None, progress: bool = True,
-                   chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1) -> dict:
+                   chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1, verify=None) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
     Views come from :class:`hbeo.render.views.ObjectViews` with the model's render settings, ``views``
@@ -75,11 +76,15 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     each view; ``model`` then only fixes the camera and the views. ``pose``: the baseline's pose
     setting (``known``, ``1dof``, ``3dof``); HBEO always estimates all three degrees of freedom.
     ``rolls``: HBEO's test-time roll averaging (:meth:`hbeo.model.inference.HBEO.predict`; bins models).
+    ``verify``: a :class:`hbeo.model.verify.VerifyConfig` to verify HBEO's answers against each view
+    (the runtime then includes it); None: HBEO alone, the paper's method.
     """
     from hbeo.baselines.methods import GIVEN_CLASS
     from hbeo.render.views import ObjectViews, RenderSettings
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
+    if verify is not None and method is not None:
+        raise ValueError("verify applies to HBEO itself, not to a baseline")
     over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
     rs = RenderSettings.from_dict({**model.settings.get("render", {}), **over})
     K = model.intrinsics
@@ -92,6 +97,10 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     if unknown := sorted({r.cls for r in records} - set(classes)):
         raise ValueError(f"{dataset.name}: classes {', '.join(unknown)} are unknown to the model "
                          f"(it knows {', '.join(classes)})")
+    verifier = None
+    if verify is not None:
+        from hbeo.model.verify import Verifier
+        verifier = Verifier(model, verify)
     rows, failures = [], []
     bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
     warm = False
@@ -119,6 +128,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                         model.predict(depth, K, rolls=rolls)
                         warm = True
                     p = model.predict(depth, K, rolls=rolls)
+                    if verifier is not None:
+                        p = verifier.apply(depth, K, p)
                     pred, R_pred, grid, ms = p.class_names[0], p.rotation[0], p.grids[0], p.timing_ms["total"]
                 else:
                     query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
@@ -147,6 +158,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records) - len(failures))
     out["failures"] = failures
     precision = getattr(model, "precision", "float32") if method is None else None
+    out["verify"] = verify.to_dict() if verify is not None else None
     return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
             "rolls": rolls if method is None else None, **out}
 
