@@ -62,7 +62,7 @@ def main() -> None:
         p = m.predict(d, K)
         R, t_true = a["rotation"][:1].astype(np.float64), a["translation"][0].astype(np.float64)
         pts, _ = C.backproject(d, K)
-        mean_shape = m.subspace.class_means_[m.subspace.classes_.index(m.classes[p.labels[0]])].reshape((30,) * 3) >= 0.5
+        mean_shape = m.subspace.eigen_object(m.classes[p.labels[0]]) >= 0.5
         t_icp = refine_translation(pts, R[0], p.translation[0], mean_shape, m.settings["object_size"])
         u = t_icp / np.linalg.norm(t_icp)
         t0 = time.perf_counter()

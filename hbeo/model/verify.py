@@ -46,7 +46,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.special import logsumexp
 from threadpoolctl import threadpool_limits
 
-from hbeo.conventions import Intrinsics, backproject
+from hbeo.conventions import OBJECT_VOXELS, Intrinsics, backproject
 from hbeo.model.network import bin_cosines
 from hbeo.rotations import matrix_to_axis_angle, project_to_so3, z_angle_to_matrix
 from hbeo.subspace.partial import iter_partial
@@ -93,22 +93,31 @@ def rotation_modes(probs: np.ndarray, grid: np.ndarray, n: int, radius_deg: floa
     return np.stack(Rs), np.asarray(mass)
 
 
+def surface_targets(shape: np.ndarray) -> np.ndarray | None:
+    """For every voxel of a shape's grid (R^3 bool, canonical frame), the centre of the nearest voxel
+    of the shape's surface, in grid coordinates (R, R, R, 3); None for an empty shape. What
+    :func:`refine_translation` matches points to (compute once per shape)."""
+    from scipy import ndimage
+    shape = np.asarray(shape, bool)
+    if not shape.any():
+        return None
+    surf = shape & ~ndimage.binary_erosion(shape)
+    _, idx = ndimage.distance_transform_edt(~surf, return_indices=True)
+    return np.moveaxis(idx, 0, -1).astype(np.float64) + 0.5
+
+
 def refine_translation(points: np.ndarray, R: np.ndarray, t: np.ndarray, shape: np.ndarray, object_size: float,
-                       iters: int = 10) -> np.ndarray:
+                       iters: int = 10, targets: np.ndarray | None = None) -> np.ndarray:
     """Translation-only ICP of camera-frame surface points (N, 3) onto a shape (30^3 bool, canonical
     frame) seen at rotation R from a start ``t`` (3,), metres: each step moves every point's
     object-frame position to its nearest voxel of the shape's surface and shifts t by the mean
-    displacement (points beyond the grid are taken to its border first). Returns the refined t."""
-    from scipy import ndimage
-    from hbeo import conventions as C
-    shape = np.asarray(shape, bool)
-    if not shape.any() or len(points) == 0:
+    displacement (points beyond the grid are taken to its border first). Returns the refined t.
+    ``targets``: the shape's :func:`surface_targets`, when already computed."""
+    nearest = surface_targets(shape) if targets is None else targets
+    if nearest is None or len(points) == 0:
         return np.asarray(t, np.float64)
-    surf = shape & ~ndimage.binary_erosion(shape)
-    _, idx = ndimage.distance_transform_edt(~surf, return_indices=True)
-    nearest = np.moveaxis(idx, 0, -1).astype(np.float64) + 0.5                       # voxel centres (.., 3)
-    vox = C.OBJECT_VOXELS / object_size                                              # voxels per metre
-    res = shape.shape[0]
+    vox = OBJECT_VOXELS / object_size                                                # voxels per metre
+    res = nearest.shape[0]
     t = np.asarray(t, np.float64).copy()
     for _ in range(iters):
         u = (points - t) @ R * vox + res / 2                                          # grid coordinates (N, 3)
@@ -135,7 +144,7 @@ class Verifier:
         self.coeff_std = np.asarray(std, np.float64) if std is not None else np.ones(self.k)
         # each class's VBPCA density in the subspace: mean a_c (k,) and precision (k, k)
         self.class_mean, self.class_prec, self.class_logdet = [], [], []
-        for i, c in enumerate(model.classes):
+        for c in model.classes:
             j = sub.classes_.index(c)
             U = np.asarray(sub.class_components_[c], np.float64) @ W                  # (q, k)
             lam = np.asarray(sub.class_variance_ratio_[c], np.float64) * sub.class_total_variance_[c]
@@ -144,13 +153,24 @@ class Verifier:
             self.class_mean.append(sub.class_means_[j].astype(np.float64) @ W)
             self.class_prec.append(np.linalg.inv(cov))
             self.class_logdet.append(2 * np.log(np.diag(L)).sum())
+        # what every query reuses: the weighted class precisions and their products with the means,
+        # the rotation grid of a bins head, and (lazily) each class mean shape's surface targets
+        self.class_weighted = [self.cfg.class_weight * P for P in self.class_prec]
+        self.class_weighted_mean = [P @ a for P, a in zip(self.class_weighted, self.class_mean)]
+        self.bin_grid = (model.net.bin_rotations.double().numpy() if model.net.cfg.rotation == "bins" else None)
+        self._targets: dict[int, np.ndarray | None] = {}
+
+    def mean_shape_targets(self, c: int) -> np.ndarray | None:
+        """:func:`surface_targets` of class ``c``'s mean shape (the subspace's class mean >= 0.5), cached."""
+        if c not in self._targets:
+            self._targets[c] = surface_targets(self.model.subspace.eigen_object(self.model.classes[c]) >= 0.5)
+        return self._targets[c]
 
     def hypotheses_rotations(self, pred, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Rotation modes of query ``i`` in the user's camera (m, 3, 3) and their log weights (m,)."""
-        cfg, net = self.cfg, self.model.net
+        cfg = self.cfg
         if pred.pose_probs is not None:
-            Rv, mass = rotation_modes(pred.pose_probs[i], net.bin_rotations.double().numpy(), cfg.rotations,
-                                      cfg.radius_deg)
+            Rv, mass = rotation_modes(pred.pose_probs[i], self.bin_grid, cfg.rotations, cfg.radius_deg)
             return pred.view_rotation[i] @ Rv, np.log(np.maximum(mass, 1e-12))
         turns = z_angle_to_matrix(2 * np.pi * np.arange(cfg.rotations) / cfg.rotations)
         return pred.rotation[i][None] @ turns, np.zeros(cfg.rotations)
@@ -172,29 +192,24 @@ class Verifier:
         coeffs = np.zeros((len(Rs), len(top), self.k))
         ts = np.repeat(np.asarray(pred.translation[i], np.float64)[None], len(Rs), axis=0)
         if cfg.refine_translation:
-            sub = model.subspace
-            res = round(sub.basis_.shape[0] ** (1 / 3))
-            shape = sub.class_means_[sub.classes_.index(model.classes[top[0]])].reshape((res,) * 3) >= 0.5
+            targets = self.mean_shape_targets(int(top[0]))
             pts, _ = backproject(np.asarray(depth), intrinsics)
-            ts = np.stack([refine_translation(pts, R, ts[0], shape, size) for R in Rs])
+            ts = np.stack([refine_translation(pts, R, ts[0], None, size, targets=targets) for R in Rs])
         with threadpool_limits(1, user_api="blas"):
-            for r0 in range(len(Rs)):
-                _, f, kn, outside = next(iter_partial(depth, intrinsics, Rs[r0:r0 + 1], ts[r0], size, chunk=1))
-                a = r0                                       # this rotation's row of the score table
-                A, b, nf = self.projector.normal_equations(f, kn)
-                for r in range(len(f)):
-                    for ci, c in enumerate(top):
-                        Pc = cfg.class_weight * self.class_prec[c]
-                        H = A[r] / s2 + Pc
-                        H[np.diag_indices(self.k)] += P_net
-                        rhs = b[r] / s2 + P_net * o_net + Pc @ self.class_mean[c]
-                        o = cho_solve(cho_factor(H, check_finite=False), rhs, check_finite=False)
-                        sse = max(0.0, nf[r] - 2 * b[r] @ o + o @ A[r] @ o) + outside[r]
-                        dn, dc = o - o_net, o - self.class_mean[c]
-                        s = (-sse / (2 * s2) - 0.5 * dn @ (P_net * dn)
-                             - cfg.class_weight * 0.5 * (dc @ self.class_prec[c] @ dc + self.class_logdet[c])
-                             + cfg.net_weight * (np.log(max(probs[c], 1e-12)) + log_pr[a + r]))
-                        scores[a + r, ci], coeffs[a + r, ci] = s, o
+            for r in range(len(Rs)):                         # each rotation carved at its own translation
+                _, f, kn, outside = next(iter_partial(depth, intrinsics, Rs[r:r + 1], ts[r], size, chunk=1))
+                (A,), (b,), (nf,) = self.projector.normal_equations(f, kn)
+                for ci, c in enumerate(top):
+                    H = A / s2 + self.class_weighted[c]
+                    H[np.diag_indices(self.k)] += P_net
+                    rhs = b / s2 + P_net * o_net + self.class_weighted_mean[c]
+                    o = cho_solve(cho_factor(H, check_finite=False), rhs, check_finite=False)
+                    sse = max(0.0, nf - 2 * b @ o + o @ A @ o) + outside[0]
+                    dn, dc = o - o_net, o - self.class_mean[c]
+                    s = (-sse / (2 * s2) - 0.5 * dn @ (P_net * dn)
+                         - cfg.class_weight * 0.5 * (dc @ self.class_prec[c] @ dc + self.class_logdet[c])
+                         + cfg.net_weight * (np.log(max(probs[c], 1e-12)) + log_pr[r]))
+                    scores[r, ci], coeffs[r, ci] = s, o
         r, ci = np.unravel_index(int(np.argmax(scores)), scores.shape)
         best = np.full(len(probs), -np.inf)
         best[top] = scores.max(axis=0)

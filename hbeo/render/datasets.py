@@ -216,12 +216,13 @@ class StreamingDepth(IterableDataset):
     def __len__(self) -> int:
         return len(self.records) * self.settings.views_per_object
 
-    def object_order(self) -> np.ndarray:
-        """Object positions in this epoch's order (before dealing them to workers)."""
+    def object_order(self, epoch: int | None = None) -> np.ndarray:
+        """Object positions in the order of ``epoch`` (default: this epoch's), before dealing them to workers."""
         n = len(self.records)
         if not self.shuffle:
             return np.arange(n)
-        seq = np.random.SeedSequence([self.settings.seed, SPLIT_CODES[self.split], self.epoch], spawn_key=(1,))
+        epoch = self.epoch if epoch is None else int(epoch)
+        seq = np.random.SeedSequence([self.settings.seed, SPLIT_CODES[self.split], epoch], spawn_key=(1,))
         return np.random.default_rng(seq).permutation(n)
 
     def __iter__(self):
@@ -272,8 +273,7 @@ class FreshPoses(TorchDataset):
         n = len(self.base)
         orders = []
         for j in range(self.passes):
-            self.base.set_epoch(epoch * self.passes + j)
-            orders.append(j * n + self.base.object_order())
+            orders.append(j * n + self.base.object_order(epoch * self.passes + j))
         return np.concatenate(orders)
 
     def __getitem__(self, i) -> dict:
