@@ -199,7 +199,7 @@ def cmd_train(args) -> int:
                             view=view, seed=args.seed, out_name=args.name, progress=not quiet, loss=weights,
                             augment_roll=args.augment_roll, max_steps=args.max_steps, data=source,
                             dataset=args.dataset, settings=settings, checkpoint_every=args.checkpoint_every,
-                            loader_workers=args.loader_workers)
+                            loader_workers=args.loader_workers, shape_loss=args.shape_loss)
     distributed.barrier()                             # the model file is complete before any process exits
     if world.main:
         print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
@@ -219,6 +219,27 @@ def _write_json(path, obj) -> None:
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 
 
+def _verifier(args, model):
+    """The verify step ``--verify`` / ``--verify-set`` ask for, or None (``--verify-set`` alone is an error)."""
+    if args.verify_set and not args.verify:
+        raise HBEOError("--verify-set needs --verify")
+    if not args.verify:
+        return None
+    from hbeo.model.verify import Verifier, VerifyConfig
+    try:
+        return Verifier(model, VerifyConfig.parse(args.verify_set))
+    except ValueError as err:
+        raise HBEOError(f"--verify-set: {err}") from None
+
+
+def _add_verify(p) -> None:
+    p.add_argument("--verify", action="store_true",
+                   help="check the network's top hypotheses (classes x rotation modes) against the depth and "
+                        "complete the shape from it (hbeo.model.verify; settings chosen on validation, README)")
+    p.add_argument("--verify-set", metavar="KEY=VALUE,...",
+                   help="verify settings over the defaults, e.g. classes=1,noise_var=1 (hbeo.model.verify.VerifyConfig)")
+
+
 def cmd_predict(args) -> int:
     from hbeo.errors import DataError
     from hbeo.storage import atomic_file, check_outputs
@@ -233,13 +254,16 @@ def cmd_predict(args) -> int:
     K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(args.mask, depth.shape) if args.mask else None
     model = HBEO.load(args.model, precision=args.precision)
+    verifier = _verifier(args, model)
     try:
         pred = model.predict(depth, K, mask, rolls=args.rolls)
     except DataError as err:              # an input the model cannot see: name the depth file
         raise DataError(args.depth, err.problem) from None
+    if verifier is not None:
+        pred = verifier.apply(depth * mask if mask is not None else depth, K, pred)
     mesh = model.to_mesh(pred) if args.mesh else None     # fails before anything is written
     result = {"model": str(args.model), "depth": str(args.depth), "precision": model.precision, "rolls": args.rolls,
-              **pred.to_dict(0)}
+              "verify": verifier.cfg.to_dict() if verifier is not None else None, **pred.to_dict(0)}
     data = None
     if mesh is not None:
         result["mesh"] = str(args.mesh)
@@ -276,12 +300,9 @@ def cmd_evaluate(args) -> int:
                         f"{args.model} (it knows {', '.join(model.classes)})")
     method = None if args.method == "hbeo" else load_method(args.method, Path(args.model).parent, profile,
                                                             progress=not args.quiet, max_steps=args.max_steps)
-    verify = None
-    if args.verify:
-        if method is not None:
-            raise HBEOError("--verify applies to --method hbeo (HBEO's own answers), not to a baseline")
-        from hbeo.model.verify import VerifyConfig
-        verify = VerifyConfig()
+    if args.verify and method is not None:
+        raise HBEOError("--verify applies to --method hbeo (HBEO's own answers), not to a baseline")
+    verify = _verifier(args, model).cfg if args.verify else None
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
                              noise=args.noise, per_class=args.per_class, progress=not args.quiet,
                              method=method, pose=pose, rolls=args.rolls, verify=verify)
@@ -297,47 +318,10 @@ def cmd_evaluate(args) -> int:
     return status
 
 
-def _same_predictions(legacy, converted) -> None:
-    """DataError unless the converted file predicts bit-identically to the old file's content put
-    together the way the old loader did (4 synthetic depth images / partial grids, fixed seed)."""
-    import io
-    import numpy as np
-    from hbeo.errors import DataError
-    b, rng = legacy.blob, np.random.default_rng(0)
-    if legacy.kind == "hbeo":
-        from hbeo.conventions import Intrinsics
-        from hbeo.model.inference import HBEO
-        from hbeo.model.network import HBEONet, NetConfig
-        from hbeo.subspace.basis import ObjectSubspace
-        net = HBEONet(NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in b["net_cfg"].items()}))
-        net.load_state_dict(b["state_dict"])
-        old = HBEO(net, ObjectSubspace.load(io.BytesIO(b["subspace"])), Intrinsics(*b["intrinsics"]),
-                   b["classes"], b["settings"])
-        K = old.intrinsics
-        v, u = np.mgrid[:K.height, :K.width]
-        depth = []
-        for z, cu, cv, r in zip(rng.uniform(1.4, 2.0, 4), rng.uniform(0.35, 0.65, 4) * K.width,
-                                rng.uniform(0.35, 0.65, 4) * K.height, rng.uniform(0.12, 0.3, 4) * K.width):
-            q = 1 - ((u - cu) ** 2 + (v - cv) ** 2) / r ** 2           # an ellipsoid's near side
-            depth.append(np.where(q > 0, z - 0.3 * np.sqrt(np.clip(q, 0, None)), 0.0))
-        a, c = old.predict(np.stack(depth), K), HBEO.load(converted).predict(np.stack(depth), K)
-        pairs = [(getattr(a, f), getattr(c, f)) for f in ("probabilities", "rotation", "translation", "coeffs",
-                                                         "grids")]
-    else:
-        from hbeo.baselines.voxcnn import VoxCNN, VoxCNNBaseline, VoxCNNConfig
-        net = VoxCNN(VoxCNNConfig.from_dict(b["net_cfg"]))
-        net.load_state_dict(b["state_dict"])
-        filled = rng.random((4, 30, 30, 30)) < 0.1
-        known = filled | (rng.random((4, 30, 30, 30)) < 0.4)
-        pairs = zip(VoxCNNBaseline(net, b["classes"], b["settings"]).predict_partial(filled, known),
-                    VoxCNNBaseline.load(converted).predict_partial(filled, known))
-    if not all(np.array_equal(x, y) for x, y in pairs):
-        raise DataError(converted, "the converted model predicts differently from the old file; not written")
-
-
 def cmd_convert_model(args) -> int:
     from hbeo.model.modelfile import convert_legacy
-    kind, path = convert_legacy(args.old, args.new, check=_same_predictions)
+    from hbeo.baselines.convert import same_predictions
+    kind, path = convert_legacy(args.old, args.new, check=same_predictions)
     print(f"{args.old} -> {path}: {kind} model in the current format (weights and predictions checked identical)")
     return 0
 
@@ -422,6 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "rendered on the fly with a fresh pose per object per pass (default: the profile's)")
     p.add_argument("--loss-weights", default="1,1,1",
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
+    p.add_argument("--shape-loss", choices=("coeffs", "voxels"), default="coeffs",
+                   help="shape term: the standardized coefficient error (paper, default) or the completed grid's "
+                        "occupancy error through the basis (raw coefficients; leading components weigh most)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
     p.add_argument("--rotation", choices=("axis_angle", "6d", "bins"), default="axis_angle",
@@ -449,6 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth-scale", type=float, help="metres per stored unit (default 0.001 for integer images)")
     p.add_argument("--out", required=True, help="result JSON")
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
+    _add_verify(p)
     p.set_defaults(func=cmd_predict)
     p = sub.add_parser("evaluate", help="render a dataset's views, predict and write the metrics JSON")
     p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
@@ -461,8 +449,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
     p.add_argument("--max-steps", type=int,
                    help="voxcnn: when it must be trained first, stop after this many optimizer steps")
-    p.add_argument("--verify", action="store_true",
-                   help="hbeo: verify each answer against the depth (hbeo.model.verify; work in progress, issue 16)")
+    _add_verify(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")

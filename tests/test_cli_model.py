@@ -199,3 +199,50 @@ def test_evaluate_on_the_validation_split_scores_held_out_training_objects_and_l
     log = pd.read_csv(RunDir(rd.path).validation_log)
     assert list(log.seed) == [0, 1] and set(log.model) == {"model.hbeo"} and (log.n_queries == 10).all()
     assert log.accuracy.iloc[0] == m["accuracy"]
+
+
+def test_predict_and_evaluate_verify_with_settings(trained, tmp_path):
+    """``--verify`` in predict and evaluate, ``--verify-set`` over the defaults, recorded in the output;
+    bad settings exit 2 with one line before any work."""
+    depth_png(tmp_path / "d.png")
+    base = ["predict", "--model", str(trained / "model.hbeo"), "--depth", str(tmp_path / "d.png"),
+            "--intrinsics", "65.6,65.6,39.5,29.5"]
+    out = run(*base, "--verify", "--verify-set", "classes=2,rotations=2", "--out", str(tmp_path / "v.json"))
+    assert out.returncode == 0, out.stderr
+    r = json.loads((tmp_path / "v.json").read_text())
+    assert r["verify"]["classes"] == 2 and r["verify"]["rotations"] == 2 and "verify" in r["timing_ms"]
+    plain = run(*base, "--out", str(tmp_path / "p.json"))
+    assert plain.returncode == 0 and json.loads((tmp_path / "p.json").read_text())["verify"] is None
+    for bad, msg in ((["--verify", "--verify-set", "clases=2"], "clases=2"),
+                     (["--verify-set", "classes=2"], "needs --verify"),
+                     (["--verify", "--verify-set", "noise_var=0"], "out of range")):
+        out = run(*base, *bad, "--out", str(tmp_path / "x.json"))
+        assert out.returncode == 2 and msg in out.stderr and out.stderr.strip().count("\n") == 0, out.stderr
+        assert not (tmp_path / "x.json").exists()
+    out = run("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--per-class", "1",
+              "--verify", "--verify-set", "classes=1", "--out", str(tmp_path / "e.json"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    m = json.loads((tmp_path / "e.json").read_text())
+    assert m["verify"]["classes"] == 1 and m["n_queries"] == 10
+
+
+def test_verify_sweep_scores_every_candidate_on_the_same_queries_and_refuses_the_test_split(trained):
+    """The sweep's HBEO-alone row is ``evaluate --split val``'s; a one-class verify keeps HBEO's classes."""
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.model.inference import HBEO
+    from hbeo.model.verify import VerifyConfig
+    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.reproduction.sweep import sweep_rows, verify_sweep
+    model = HBEO.load(trained / "model.hbeo")
+    ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
+    res = verify_sweep(model, ds, {"hbeo": None, "one class": VerifyConfig(classes=1, rotations=2)}, progress=False)
+    ref = evaluate_model(model, ds, split="val", progress=False)
+    assert res["hbeo"]["per_query"]["pred"] == ref["per_query"]["pred"]
+    assert res["hbeo"]["per_query"]["iou"] == ref["per_query"]["iou"]
+    assert res["one class"]["per_query"]["pred"] == ref["per_query"]["pred"]
+    assert res["one class"]["per_query"]["iou"] != ref["per_query"]["iou"]
+    rows = sweep_rows(res, "abc")
+    assert [r["name"] for r in rows] == ["hbeo", "one class"] and rows[0]["verify"] == "null"
+    with pytest.raises(ValueError, match="never on the test split"):
+        verify_sweep(model, ds, {"hbeo": None}, split="test", progress=False)

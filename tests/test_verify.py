@@ -104,7 +104,8 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
     assert len(Rs) == 4 and np.allclose(logw, 0)
     np.testing.assert_allclose(geodesic_deg(Rs[0], Rs[2]), 180, atol=1e-6)
     q = v.apply(d, model.intrinsics, pred)
-    assert q.grids.shape == pred.grids.shape and "verify" in q.timing_ms
+    assert q.grids.shape == pred.grids.shape and q.timing_ms["verify"] > 0      # verify is timed, in the total
+    assert q.timing_ms["total"] == pytest.approx(pred.timing_ms["total"] + q.timing_ms["verify"])
 
 
 def test_evaluate_with_verify_reports_its_settings_and_refuses_baselines(model_and_view):
@@ -117,6 +118,15 @@ def test_evaluate_with_verify_reports_its_settings_and_refuses_baselines(model_a
     out = evaluate_model(model, ds, per_class=1, progress=False, verify=VerifyConfig())
     assert plain["verify"] is None and out["verify"] == VerifyConfig().to_dict()
     assert out["n_queries"] == plain["n_queries"] == 10
-    assert out["runtime_ms"]["median_per_query"] > plain["runtime_ms"]["median_per_query"]   # verify is timed
     with pytest.raises(ValueError, match="verify applies to HBEO"):
         evaluate_model(model, ds, per_class=1, progress=False, verify=VerifyConfig(), method=object())
+
+
+def test_verify_settings_parse_from_the_command_line_text():
+    assert VerifyConfig.parse(None) == VerifyConfig() == VerifyConfig.parse("")
+    cfg = VerifyConfig.parse("classes=1, noise-var=2,refine_translation=off")
+    assert (cfg.classes, cfg.noise_var, cfg.refine_translation) == (1, 2.0, False)
+    for bad, msg in (("foo=1", "key one of"), ("classes", "key one of"), ("classes=x", "not a int"),
+                     ("rotations=0", "out of range"), ("refine_translation=maybe", "not a bool")):
+        with pytest.raises(ValueError, match=msg):
+            VerifyConfig.parse(bad)

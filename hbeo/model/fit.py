@@ -50,6 +50,13 @@ from hbeo.subspace.basis import ObjectSubspace
 DATA_SOURCES = ("memory", "shards", "stream")
 #: ``shards``: shards shuffled together (and held in memory) at a time (:class:`ShardSampler`).
 SHARD_MIX = 8
+#: What the shape term of the loss measures (``python -m hbeo train --shape-loss``): ``coeffs`` (the
+#: paper: the L2 norm of the standardized coefficient error, every coefficient weighted alike) or
+#: ``voxels`` (the L2 norm of the completed grid's occupancy error: the basis is orthonormal, so
+#: ``||W c_hat - W c|| = ||c_hat - c||`` on raw coefficients; the leading components, which carry most
+#: voxels, weigh most), divided by the root-mean-square coefficient standard deviation so that both
+#: terms have the same size, sqrt(k), for a network that answers the mean coefficients.
+SHAPE_LOSSES = ("coeffs", "voxels")
 
 
 @dataclass
@@ -72,28 +79,44 @@ class HBEONetTask:
     """HBEONet for :func:`hbeo.model.train.train`: the paper's loss (:func:`hbeo.model.network.hbeo_loss`
     with ``weights``) on batches of :class:`ViewArrays` items (``depth`` (B, 1, H, W) metres,
     ``label`` (B,), ``rotation`` (B, 3, 3), ``axis_angle`` (B, 3), ``coeffs`` (B, k) standardized).
-    Validation: mean loss parts, accuracy and median geodesic pose error (degrees)."""
+    Validation: mean loss parts, accuracy and median geodesic pose error (degrees).
+    ``coeff_std`` (k,): the targets' standard deviations, given for the ``voxels`` shape loss
+    (:data:`SHAPE_LOSSES`): the coefficient error is then measured on raw coefficients."""
 
     net_cfg: NetConfig
     weights: LossWeights = field(default_factory=LossWeights)
+    coeff_std: np.ndarray | None = None
     kind = "hbeonet"
     unit = "images"
 
     def config(self) -> dict:
-        return {"net": self.net_cfg.to_dict(), "loss": asdict(self.weights)}
+        cfg = {"net": self.net_cfg.to_dict(), "loss": asdict(self.weights)}
+        if self.coeff_std is not None:          # the paper's loss keeps the configuration it always had
+            cfg["shape_loss"] = "voxels"
+        return cfg
+
+    def _scale(self, like: torch.Tensor):
+        """Divisor of the standardized coefficient error: 1 (paper) or rms(std) / std (raw coefficients,
+        rescaled: :data:`SHAPE_LOSSES`)."""
+        if self.coeff_std is None:
+            return 1.0
+        std = torch.as_tensor(self.coeff_std, dtype=like.dtype, device=like.device)
+        return std.square().mean().sqrt() / std
 
     def build(self) -> HBEONet:
         return HBEONet(self.net_cfg).to(memory_format=torch.channels_last)
 
     def loss(self, net: HBEONet, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         out = net(batch["depth"].contiguous(memory_format=torch.channels_last))
-        return hbeo_loss(out, batch, self.net_cfg, self.weights, 1.0, getattr(net, "bin_rotations", None))
+        return hbeo_loss(out, batch, self.net_cfg, self.weights, self._scale(out["coeffs"]),
+                         getattr(net, "bin_rotations", None))
 
     def validate(self, net: HBEONet, batches) -> dict[str, float]:
         means, errors = ValidationMeans(), []
         for batch in batches:
             out = net(batch["depth"])
-            loss, parts = hbeo_loss(out, batch, self.net_cfg, self.weights, 1.0, getattr(net, "bin_rotations", None))
+            loss, parts = hbeo_loss(out, batch, self.net_cfg, self.weights, self._scale(out["coeffs"]),
+                                    getattr(net, "bin_rotations", None))
             means.add(loss, parts, out["logits"], batch["label"])
             R = net.pose_matrix(out["pose"].float()).cpu().numpy()
             errors.append(geodesic_deg(R, batch["rotation"].cpu().numpy()))
@@ -309,7 +332,7 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
               loss: LossWeights | None = None, augment_roll: bool = False,
               max_steps: int | None = None, data: str | None = None, dataset: str | None = None,
               settings: RenderSettings | None = None, checkpoint_every: int | None = None,
-              loader_workers: int = 0) -> tuple[HBEO, Path]:
+              loader_workers: int = 0, shape_loss: str = "coeffs") -> tuple[HBEO, Path]:
     """Train on the run's training images with its subspace; writes the model file
     ``out_name`` (``RunDir.model_file``; None: the run's default model) into ``run`` (a RunDir or a
     path) and returns the model and its path. Checkpoints go to ``RunDir.training(out_name)`` (a rerun resumes exactly).
@@ -322,6 +345,7 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     the profile's) on the fly, the others read the run's rendered training set.
     ``checkpoint_every``: also checkpoint every that many steps; ``loader_workers``: DataLoader
     worker processes that prepare batches while the network trains (0: in this process).
+    ``shape_loss``: what the shape term measures (:data:`SHAPE_LOSSES`).
     Under ``torchrun`` every process trains and returns the model; rank 0 alone writes the file."""
     run = RunDir.of(run)
     prof = config.get_profile(profile)
@@ -329,6 +353,8 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     source = data or prof.train_data
     if source not in DATA_SOURCES:
         raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
+    if shape_loss not in SHAPE_LOSSES:
+        raise ValueError(f"unknown shape loss {shape_loss!r}; expected one of {', '.join(SHAPE_LOSSES)}")
     model_path = run.model_file(out_name)
     sub = ObjectSubspace.load(run.subspace)
     if source != "stream":
@@ -348,10 +374,12 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
                      progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.batch_size)),
                      max_steps=max_steps, data=how, checkpoint_every=checkpoint_every, num_workers=loader_workers)
-    net = train(HBEONetTask(cfg, loss or LossWeights()), data.train, data.val, run.training(model_path), tc)
+    task = HBEONetTask(cfg, loss or LossWeights(), np.asarray(data.coeff_std) if shape_loss == "voxels" else None)
+    net = train(task, data.train, data.val, run.training(model_path), tc)
     model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
                       "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,
-                      "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll}
+                      "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll,
+                      "shape_loss": shape_loss}
     model = HBEO(net.cpu(), sub, data.settings.intrinsics, data.classes, model_settings)
     if not distributed.world().main:
         return model, model_path

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 import torch
@@ -68,6 +68,37 @@ class VerifyConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def parse(cls, text: str | None) -> "VerifyConfig":
+        """Settings from ``key=value,key=value`` (the command line's ``--verify-set``) over the
+        defaults; empty or None: the defaults. Unknown keys and bad values raise ValueError naming them."""
+        kw: dict = {}
+        types = {f.name: f.type for f in fields(cls)}
+        for part in filter(None, (x.strip() for x in (text or "").split(","))):
+            key, eq, value = part.partition("=")
+            key = key.strip().replace("-", "_")
+            if not eq or key not in types:
+                raise ValueError(f"verify setting {part!r}: expected key=value with key one of {', '.join(types)}")
+            kind = {"int": int, "float": float, "bool": _bool}[types[key]]
+            try:
+                kw[key] = kind(value.strip())
+            except ValueError:
+                raise ValueError(f"verify setting {part!r}: {value.strip()!r} is not a {types[key]}") from None
+        cfg = cls(**kw)
+        if cfg.classes < 1 or cfg.rotations < 1 or cfg.noise_var <= 0 or cfg.prior_scale <= 0 or \
+                min(cfg.radius_deg, cfg.class_weight, cfg.net_weight) < 0:
+            raise ValueError(f"verify settings out of range: {cfg} (classes, rotations >= 1; noise_var, "
+                             f"prior_scale > 0; radius_deg, class_weight, net_weight >= 0)")
+        return cfg
+
+
+def _bool(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(text)
 
 
 def rotation_modes(probs: np.ndarray, grid: np.ndarray, n: int, radius_deg: float) -> tuple[np.ndarray, np.ndarray]:

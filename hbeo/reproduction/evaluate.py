@@ -80,7 +80,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     (the runtime then includes it); None: HBEO alone, the paper's method.
     """
     from hbeo.baselines.methods import GIVEN_CLASS
-    from hbeo.render.views import ObjectViews, RenderSettings
+    from hbeo.render.views import RenderSettings
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
     if verify is not None and method is not None:
@@ -104,20 +104,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     rows, failures = [], []
     bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
     warm = False
-    for start in range(0, len(records), chunk):
-        # render a chunk with the renderer closed afterwards, then predict it: the renderer's
-        # threads would otherwise compete with the network's and distort the runtimes
-        viewer, batch = ObjectViews(rs), []
-        try:
-            for i in range(start, min(start + chunk, len(records))):
-                try:
-                    batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
-                except DataError as err:      # a bad object: named at the end, the others still scored
-                    failures.append(failure(err.path or _name(records[i]), err.problem, "evaluate",
-                                            object=_name(records[i]), split=split))
-                    bar.update(1)
-        finally:
-            viewer.close()
+    for batch in rendered_chunks(rs, records, split, chunk, failures, bar):
         for i, rec, v, truth in batch:
             for j in range(views):
                 depth = v["depth"][j].astype(np.float32)
@@ -161,6 +148,27 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     out["verify"] = verify.to_dict() if verify is not None else None
     return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
             "rolls": rolls if method is None else None, **out}
+
+
+def rendered_chunks(rs, records, split: str, chunk: int, failures: list, bar):
+    """Render ``records`` with settings ``rs`` ``chunk`` objects at a time: yields lists of (index,
+    record, views dict of :meth:`ObjectViews.views`, true grid). Object i gets the random stream of
+    object i of the split; the renderer is closed before each chunk is yielded (its threads would
+    compete with the caller's and distort runtimes). A bad object is appended to ``failures`` and skipped."""
+    from hbeo.render.views import ObjectViews
+    for start in range(0, len(records), chunk):
+        viewer, batch = ObjectViews(rs), []
+        try:
+            for i in range(start, min(start + chunk, len(records))):
+                try:
+                    batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
+                except DataError as err:      # a bad object: named at the end, the others still scored
+                    failures.append(failure(err.path or _name(records[i]), err.problem, "evaluate",
+                                            object=_name(records[i]), split=split))
+                    bar.update(1)
+        finally:
+            viewer.close()
+        yield batch
 
 
 def split_records(dataset, split: str, per_class: int | None = None, profile=None) -> list:
