@@ -334,6 +334,11 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_report(args) -> int:
+    if args.model_table:
+        from hbeo.reproduction.model_table import write_model_table
+        path = write_model_table(args.run, args.readme)
+        print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
+        return 0
     from hbeo.reproduction.report import write_reproduction
     path = write_reproduction(args.run, args.out)
     print(f"wrote {path}")
@@ -479,6 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("report", help="write paper/REPRODUCTION.md (reported vs. reproduced) from a finished run")
     p.add_argument("--run", required=True, help="run folder, e.g. results/cpu-modelnet10-vox30")
     p.add_argument("--out", help="output file (default: paper/REPRODUCTION.md)")
+    p.add_argument("--model-table", action="store_true",
+                   help="instead: the model table (validation / test) from the run's models.json -> model_table.md")
+    p.add_argument("--readme", help="with --model-table: also replace the table's block in this README")
     p.set_defaults(func=cmd_report)
     return ap
 

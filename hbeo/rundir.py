@@ -161,6 +161,22 @@ class RunDir:
         """``validation.csv``: one row per ``evaluate --split val`` of a model in this folder."""
         return self.path / "validation.csv"
 
+    @property
+    def verify_sweep(self) -> Path:
+        """``verify_sweep.csv``: every verify setting tried on validation objects, one row each."""
+        return self.path / "verify_sweep.csv"
+
+    @property
+    def model_rows(self) -> Path:
+        """``models.json``: the rows of the README's model table (label, validation and test
+        metrics files of this folder, chosen on validation or not; :mod:`hbeo.reproduction.model_table`)."""
+        return self.path / "models.json"
+
+    @property
+    def model_table(self) -> Path:
+        """``model_table.md``: that table, generated from ``models.json`` and the files it names."""
+        return self.path / "model_table.md"
+
     def checkpoint(self, model_file: str | os.PathLike) -> Path:
         return self.training(model_file) / CHECKPOINT
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbeo.model.verify import Verifier, VerifyConfig, refine_translation, rotation_modes
+from hbeo.model.verify import Verifier, VerifyConfig, align_translation, rotation_modes
 from hbeo.rotations import geodesic_deg, super_fibonacci, z_angle_to_matrix
 from hbeo.subspace.projection import MaskedProjector
 
@@ -49,20 +49,23 @@ def test_rotation_modes_find_two_separated_peaks_with_their_mass():
     assert mass[0] > mass[1] > mass[2:].max(initial=0) and mass.sum() <= 1 + 1e-9
 
 
-def test_translation_refinement_moves_a_shifted_view_back_onto_the_shape():
+def test_translation_alignment_moves_a_shifted_shape_back_onto_the_depth():
+    from hbeo.conventions import Intrinsics
+    from hbeo.model.verify import shape_depth, surface_points
     shape = np.zeros((30, 30, 30), bool)
     shape[6:24, 9:21, 3:27] = True                              # a box, 1 m = 24 voxels
-    vox = np.argwhere(shape)
-    # the three faces a camera towards -x, -y, -z sees (one face alone would let the view slide along it)
-    seen = vox[(vox[:, 0] == 6) | (vox[:, 1] == 9) | (vox[:, 2] == 3)]
-    R, t_true = np.eye(3), np.array([0.0, 0.0, 2.0])
-    pts = ((seen + 0.5 - 15) / 24.0) @ R.T + t_true             # object frame -> camera
-    # nearest-voxel ICP: from 4-7 voxels off it ends about 1-1.2 voxels (4-5 cm) off, not exactly
-    # (matches to the wrong face hold it back); measured on ModelNet10 test views it halves the error
-    for off in ([0.06, -0.04, 0.15], [-0.05, 0.05, -0.05]):
+    K = Intrinsics(65.6, 65.6, 39.5, 29.5, 80, 60)
+    R = z_angle_to_matrix(0.6) @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
+    t_true = np.array([0.1, -0.05, 1.8])
+    pts = surface_points(shape, 1.0)
+    depth = shape_depth(pts, R, t_true, K)
+    assert (depth > 0).sum() > 200 and depth[depth > 0].min() > 1.2
+    for off in ([0.06, -0.04, 0.15], [-0.05, 0.05, -0.2]):
         start = t_true + np.array(off)
-        t = refine_translation(pts, R, start, shape, 1.0)
-        assert np.linalg.norm(t - t_true) < min(0.055, 0.6 * np.linalg.norm(start - t_true))
+        t = align_translation(depth, R, start, pts, K)
+        assert np.linalg.norm(t - t_true) < 0.1 * np.linalg.norm(start - t_true)
+    # nothing observed: the start is kept
+    assert np.linalg.norm(align_translation(np.zeros_like(depth), R, t_true, pts, K) - t_true) == 0
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,9 @@ For one query (a depth image, the :class:`~hbeo.model.inference.Prediction` of
    resolve, equally weighted. The translation is the model's estimate of the object centre.
 2. **Carving.** The depth image becomes known-filled / known-empty / unknown voxels at each
    rotation (:func:`hbeo.subspace.partial.iter_partial`), surface points beyond the grid counted,
-   at the model's centre estimate moved by translation-only ICP onto the most probable class's
-   mean shape at that rotation (:func:`refine_translation`; ``refine_translation=False``: as estimated).
+   at the model's centre estimate moved so that HBEO's completion, rendered at that rotation, shows
+   what the depth shows (:func:`align_translation`; ``refine_translation=False``: as estimated);
+   ``realign`` > 0 aligns again on the best MAP completion at that rotation and solves again.
 3. **MAP completion.** For each (class c, rotation r) the coefficients o minimize
    ``||V W o - w||^2 / (2 s^2)`` (the observed voxels, ``s^2 = noise_var``) plus two Gaussian
    priors: the network's guess, N(o_net, diag((prior_scale * std)^2)) with std the training
@@ -44,9 +45,9 @@ import numpy as np
 import torch
 from scipy.linalg import cho_factor, cho_solve
 from scipy.special import logsumexp
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
-from hbeo.conventions import OBJECT_VOXELS, Intrinsics, backproject
+from hbeo.conventions import OBJECT_VOXELS, Intrinsics
 from hbeo.model.network import bin_cosines
 from hbeo.rotations import matrix_to_axis_angle, project_to_so3, z_angle_to_matrix
 from hbeo.subspace.partial import iter_partial
@@ -64,7 +65,8 @@ class VerifyConfig:
     prior_scale: float = 1.0      #: the network prior's std, in training coefficient stds
     class_weight: float = 1.0     #: weight of the class density (0: network prior only)
     net_weight: float = 1.0       #: weight of the network's log probabilities
-    refine_translation: bool = True   #: ICP the model's centre estimate onto the top class's mean shape, per rotation
+    refine_translation: bool = True   #: align the centre per rotation: HBEO's completion rendered onto the depth
+    realign: int = 0              #: then this many times: re-align on the best completion at that rotation, re-solve
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -124,39 +126,64 @@ def rotation_modes(probs: np.ndarray, grid: np.ndarray, n: int, radius_deg: floa
     return np.stack(Rs), np.asarray(mass)
 
 
-def surface_targets(shape: np.ndarray) -> np.ndarray | None:
-    """For every voxel of a shape's grid (R^3 bool, canonical frame), the centre of the nearest voxel
-    of the shape's surface, in grid coordinates (R, R, R, 3); None for an empty shape. What
-    :func:`refine_translation` matches points to (compute once per shape)."""
+#: 8 sub-voxel offsets (voxels) at which :func:`surface_points` samples each surface voxel
+_SUB = np.array([[a, b, c] for a in (-0.25, 0.25) for b in (-0.25, 0.25) for c in (-0.25, 0.25)])
+
+
+def surface_points(shape: np.ndarray, object_size: float) -> np.ndarray:
+    """A shape's (30^3 bool, canonical frame) surface as points (N, 3), object frame, metres: each
+    surface voxel as 8 sub-voxel points (dense enough that a view at the training distances has no
+    holes). What :func:`shape_depth` renders; compute once per shape."""
     from scipy import ndimage
     shape = np.asarray(shape, bool)
-    if not shape.any():
-        return None
-    surf = shape & ~ndimage.binary_erosion(shape)
-    _, idx = ndimage.distance_transform_edt(~surf, return_indices=True)
-    return np.moveaxis(idx, 0, -1).astype(np.float64) + 0.5
+    surf = np.argwhere(shape & ~ndimage.binary_erosion(shape)).astype(np.float64)
+    vox, res = OBJECT_VOXELS / object_size, shape.shape[0]
+    return ((surf[:, None, :] + 0.5 + _SUB[None]).reshape(-1, 3) - res / 2) / vox
 
 
-def refine_translation(points: np.ndarray, R: np.ndarray, t: np.ndarray, shape: np.ndarray, object_size: float,
-                       iters: int = 10, targets: np.ndarray | None = None) -> np.ndarray:
-    """Translation-only ICP of camera-frame surface points (N, 3) onto a shape (30^3 bool, canonical
-    frame) seen at rotation R from a start ``t`` (3,), metres: each step moves every point's
-    object-frame position to its nearest voxel of the shape's surface and shifts t by the mean
-    displacement (points beyond the grid are taken to its border first). Returns the refined t.
-    ``targets``: the shape's :func:`surface_targets`, when already computed."""
-    nearest = surface_targets(shape) if targets is None else targets
-    if nearest is None or len(points) == 0:
-        return np.asarray(t, np.float64)
-    vox = OBJECT_VOXELS / object_size                                                # voxels per metre
-    res = nearest.shape[0]
+def shape_depth(points: np.ndarray, R: np.ndarray, t: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """The depth image (H, W), metres, 0 = nothing, that camera ``intrinsics`` sees of a shape's
+    :func:`surface_points` (N, 3) at rotation R, centre t (metres): the points z-buffered per pixel
+    (a fast approximation of rendering the voxels)."""
+    K = intrinsics
+    cam = points @ np.asarray(R, np.float64).T + np.asarray(t, np.float64)
+    cam = cam[cam[:, 2] > 1e-6]
+    u = np.rint(K.fx * cam[:, 0] / cam[:, 2] + K.cx).astype(np.int64)        # pixel centres are integers
+    v = np.rint(K.fy * cam[:, 1] / cam[:, 2] + K.cy).astype(np.int64)
+    ok = (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
+    near = np.full(K.width * K.height, np.inf)
+    np.minimum.at(near, v[ok] * K.width + u[ok], cam[ok, 2])
+    return np.where(np.isfinite(near), near, 0.0).reshape(K.height, K.width)
+
+
+def align_translation(depth: np.ndarray, R: np.ndarray, t: np.ndarray, points: np.ndarray,
+                      intrinsics: Intrinsics, iters: int = 3) -> np.ndarray:
+    """The object centre (3,), metres, at which a shape (its :func:`surface_points` (N, 3)) seen at
+    rotation R shows the observed depth image ``depth`` (H, W): from a start ``t``, each step renders
+    the shape (:func:`shape_depth`) and moves t along the optical axis by the median depth difference
+    over the pixels both images cover, and across it by the shift of the silhouettes' centroids.
+    Unlike nearest-surface ICP it compares what the camera sees with what it would see, so the back
+    of the shape cannot pull the centre."""
     t = np.asarray(t, np.float64).copy()
+    obs = np.asarray(depth) > 0
+    if not obs.any() or not len(points):
+        return t
+    rows, cols = np.nonzero(obs)
+    cu, cv = cols.mean(), rows.mean()
+    K = intrinsics
     for _ in range(iters):
-        u = (points - t) @ R * vox + res / 2                                          # grid coordinates (N, 3)
-        cell = np.clip(np.floor(u).astype(np.int64), 0, res - 1)
-        target = nearest[cell[:, 0], cell[:, 1], cell[:, 2]]
-        step = (u - target).mean(axis=0) / vox                                        # object frame, metres
-        t += R @ step
-        if np.linalg.norm(step) < 0.25 / vox:
+        syn = shape_depth(points, R, t, K)
+        seen = syn > 0
+        if not seen.any():
+            break
+        both = obs & seen
+        dz = float(np.median(depth[both] - syn[both])) if both.any() else 0.0
+        r2, c2 = np.nonzero(seen)
+        z = t[2] + dz
+        step = np.array([(cu - c2.mean()) * z / K.fx, (cv - r2.mean()) * z / K.fy, 0.0])
+        step += t / t[2] * dz if t[2] > 0 else np.array([0.0, 0.0, dz])        # depth change along the ray
+        t += step
+        if np.linalg.norm(step) < 1e-3:
             break
     return t
 
@@ -185,17 +212,11 @@ class Verifier:
             self.class_prec.append(np.linalg.inv(cov))
             self.class_logdet.append(2 * np.log(np.diag(L)).sum())
         # what every query reuses: the weighted class precisions and their products with the means,
-        # the rotation grid of a bins head, and (lazily) each class mean shape's surface targets
+        # and the rotation grid of a bins head
         self.class_weighted = [self.cfg.class_weight * P for P in self.class_prec]
         self.class_weighted_mean = [P @ a for P, a in zip(self.class_weighted, self.class_mean)]
         self.bin_grid = (model.net.bin_rotations.double().numpy() if model.net.cfg.rotation == "bins" else None)
-        self._targets: dict[int, np.ndarray | None] = {}
-
-    def mean_shape_targets(self, c: int) -> np.ndarray | None:
-        """:func:`surface_targets` of class ``c``'s mean shape (the subspace's class mean >= 0.5), cached."""
-        if c not in self._targets:
-            self._targets[c] = surface_targets(self.model.subspace.eigen_object(self.model.classes[c]) >= 0.5)
-        return self._targets[c]
+        self._blas = ThreadpoolController()          # found once: looking the libraries up costs ~9 ms a call
 
     def hypotheses_rotations(self, pred, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Rotation modes of query ``i`` in the user's camera (m, 3, 3) and their log weights (m,)."""
@@ -212,7 +233,6 @@ class Verifier:
         "grid" (30^3 bool), "score", "n_hypotheses", "ms"}."""
         t0 = time.perf_counter()
         cfg, model = self.cfg, self.model
-        s2 = cfg.noise_var
         Rs, log_pr = self.hypotheses_rotations(pred, i)
         probs = np.asarray(pred.probabilities[i], np.float64)
         top = np.argsort(-probs)[:cfg.classes]
@@ -223,24 +243,17 @@ class Verifier:
         coeffs = np.zeros((len(Rs), len(top), self.k))
         ts = np.repeat(np.asarray(pred.translation[i], np.float64)[None], len(Rs), axis=0)
         if cfg.refine_translation:
-            targets = self.mean_shape_targets(int(top[0]))
-            pts, _ = backproject(np.asarray(depth), intrinsics)
-            ts = np.stack([refine_translation(pts, R, ts[0], None, size, targets=targets) for R in Rs])
-        with threadpool_limits(1, user_api="blas"):
+            pts = surface_points(pred.grids[i], size)
+            ts = np.stack([align_translation(depth, R, ts[0], pts, intrinsics) for R in Rs])
+        with self._blas.limit(limits=1, user_api="blas"):
             for r in range(len(Rs)):                         # each rotation carved at its own translation
-                _, f, kn, outside = next(iter_partial(depth, intrinsics, Rs[r:r + 1], ts[r], size, chunk=1))
-                (A,), (b,), (nf,) = self.projector.normal_equations(f, kn)
-                for ci, c in enumerate(top):
-                    H = A / s2 + self.class_weighted[c]
-                    H[np.diag_indices(self.k)] += P_net
-                    rhs = b / s2 + P_net * o_net + self.class_weighted_mean[c]
-                    o = cho_solve(cho_factor(H, check_finite=False), rhs, check_finite=False)
-                    sse = max(0.0, nf - 2 * b @ o + o @ A @ o) + outside[0]
-                    dn, dc = o - o_net, o - self.class_mean[c]
-                    s = (-sse / (2 * s2) - 0.5 * dn @ (P_net * dn)
-                         - cfg.class_weight * 0.5 * (dc @ self.class_prec[c] @ dc + self.class_logdet[c])
-                         + cfg.net_weight * (np.log(max(probs[c], 1e-12)) + log_pr[r]))
-                    scores[r, ci], coeffs[r, ci] = s, o
+                for rep in range(1 + (cfg.realign if cfg.refine_translation else 0)):
+                    if rep:                                   # the best completion at this rotation, aligned
+                        best_o = coeffs[r, int(np.argmax(scores[r]))]
+                        shape = model.subspace.reconstruct(best_o[None].astype(np.float32), threshold=0.5)[0]
+                        ts[r] = align_translation(depth, Rs[r], ts[r], surface_points(shape, size), intrinsics)
+                    scores[r], coeffs[r] = self._solve(depth, intrinsics, Rs[r], ts[r], size, top, probs, o_net,
+                                                       P_net, log_pr[r])
         r, ci = np.unravel_index(int(np.argmax(scores)), scores.shape)
         best = np.full(len(probs), -np.inf)
         best[top] = scores.max(axis=0)
@@ -251,6 +264,26 @@ class Verifier:
                 "coeffs": o, "grid": grid,
                 "score": float(scores[r, ci]), "n_hypotheses": int(scores.size),
                 "ms": (time.perf_counter() - t0) * 1e3}
+
+    def _solve(self, depth, intrinsics, R, t, size, top, probs, o_net, P_net, log_pr) -> tuple[np.ndarray, np.ndarray]:
+        """One rotation's hypotheses: the view carved at (R, t), the MAP coefficients of each class of
+        ``top`` and their log posteriors -> (scores (len(top),), coefficients (len(top), k))."""
+        cfg, s2 = self.cfg, self.cfg.noise_var
+        scores, coeffs = np.full(len(top), -np.inf), np.zeros((len(top), self.k))
+        _, f, kn, outside = next(iter_partial(depth, intrinsics, R[None], t, size, chunk=1))
+        (A,), (b,), (nf,) = self.projector.normal_equations(f, kn)
+        for ci, c in enumerate(top):
+            H = A / s2 + self.class_weighted[c]
+            H[np.diag_indices(self.k)] += P_net
+            rhs = b / s2 + P_net * o_net + self.class_weighted_mean[c]
+            o = cho_solve(cho_factor(H, check_finite=False), rhs, check_finite=False)
+            sse = max(0.0, nf - 2 * b @ o + o @ A @ o) + outside[0]
+            dn, dc = o - o_net, o - self.class_mean[c]
+            scores[ci] = (-sse / (2 * s2) - 0.5 * dn @ (P_net * dn)
+                          - cfg.class_weight * 0.5 * (dc @ self.class_prec[c] @ dc + self.class_logdet[c])
+                          + cfg.net_weight * (np.log(max(probs[c], 1e-12)) + log_pr))
+            coeffs[ci] = o
+        return scores, coeffs
 
     def apply(self, depth, intrinsics: Intrinsics, pred):
         """A copy of ``pred`` (from ``depth`` (H, W) or (B, H, W)) with every query verified;
