@@ -236,13 +236,18 @@ def test_verify_sweep_scores_every_candidate_on_the_same_queries_and_refuses_the
     from hbeo.reproduction.sweep import sweep_rows, verify_sweep
     model = HBEO.load(trained / "model.hbeo")
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
-    res = verify_sweep(model, ds, {"hbeo": None, "one class": VerifyConfig(classes=1, rotations=2)}, progress=False)
+    res = verify_sweep(model, ds, {"hbeo": None, "one class": VerifyConfig(classes=1, rotations=2)}, progress=False,
+                       thresholds=(0, 1.01))
     ref = evaluate_model(model, ds, split="val", progress=False)
     assert res["hbeo"]["per_query"]["pred"] == ref["per_query"]["pred"]
     assert res["hbeo"]["per_query"]["iou"] == ref["per_query"]["iou"]
     assert res["one class"]["per_query"]["pred"] == ref["per_query"]["pred"]
     assert res["one class"]["per_query"]["iou"] != ref["per_query"]["iou"]
+    # derived thresholds: 0 keeps every verified answer, above 1 none (HBEO's own everywhere)
+    assert res["one class min_agreement=0"]["per_query"]["iou"] == res["one class"]["per_query"]["iou"]
+    assert res["one class min_agreement=1.01"]["per_query"]["iou"] == ref["per_query"]["iou"]
+    assert res["one class min_agreement=1.01"]["verify"]["min_agreement"] == 1.01
     rows = sweep_rows(res, "abc")
-    assert [r["name"] for r in rows] == ["hbeo", "one class"] and rows[0]["verify"] == "null"
+    assert [r["name"] for r in rows][:2] == ["hbeo", "one class"] and rows[0]["verify"] == "null"
     with pytest.raises(ValueError, match="never on the test split"):
         verify_sweep(model, ds, {"hbeo": None}, split="test", progress=False)

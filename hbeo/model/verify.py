@@ -28,6 +28,9 @@ For one query (a depth image, the :class:`~hbeo.model.inference.Prediction` of
    coefficients, both prior log densities there, ``net_weight`` x (log p_net(c) + log p_net(r)).
    The best hypothesis gives class, rotation and completion; class probabilities are the softmax
    of each class's best score.
+5. **Check.** The best completion is rendered at its pose and compared with the depth
+   (:func:`depth_agreement`); below ``min_agreement`` verify keeps HBEO's own answer (a wrong
+   rotation carves the view into the wrong voxels, and its completion is worse than the network's).
 
 Frames and units are those of :mod:`hbeo.conventions` (R: object -> user camera; t metres).
 Per query: one GEMM of the basis over the known voxels and one carving per rotation, a k x k
@@ -67,6 +70,8 @@ class VerifyConfig:
     net_weight: float = 1.0       #: weight of the network's log probabilities
     refine_translation: bool = True   #: align the centre per rotation: HBEO's completion rendered onto the depth
     realign: int = 0              #: then this many times: re-align on the best completion at that rotation, re-solve
+    min_agreement: float = 0.0    #: below this depth agreement of the best hypothesis, keep HBEO's own answer
+    agreement_tol: float = 2.0    #: depth difference (voxels) under which a pixel agrees
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -156,6 +161,18 @@ def shape_depth(points: np.ndarray, R: np.ndarray, t: np.ndarray, intrinsics: In
     return np.where(np.isfinite(near), near, 0.0).reshape(K.height, K.width)
 
 
+def depth_agreement(observed: np.ndarray, rendered: np.ndarray, tol: float) -> float:
+    """How well a rendered depth image (H, W) explains an observed one: the fraction of the pixels
+    either covers where both do and their depths differ by less than ``tol`` metres (1: the same
+    silhouette and surface; 0: nothing in common)."""
+    a, b = np.asarray(observed) > 0, np.asarray(rendered) > 0
+    union = np.count_nonzero(a | b)
+    if union == 0:
+        return 0.0
+    both = a & b
+    return float(np.count_nonzero(np.abs(observed[both] - rendered[both]) < tol)) / union
+
+
 def align_translation(depth: np.ndarray, R: np.ndarray, t: np.ndarray, points: np.ndarray,
                       intrinsics: Intrinsics, iters: int = 3) -> np.ndarray:
     """The object centre (3,), metres, at which a shape (its :func:`surface_points` (N, 3)) seen at
@@ -230,7 +247,9 @@ class Verifier:
     def verify(self, depth: np.ndarray, intrinsics: Intrinsics, pred, i: int = 0) -> dict:
         """Verify query ``i`` of ``pred`` (made from ``depth`` (H, W) metres with ``intrinsics``).
         Returns {"probabilities" (C,), "label", "rotation" (3, 3), "translation" (3,), "coeffs" (k,),
-        "grid" (30^3 bool), "score", "n_hypotheses", "ms"}."""
+        "grid" (30^3 bool), "score", "n_hypotheses", "agreement" (:func:`depth_agreement` of the best
+        hypothesis' completion rendered at its pose), "kept_network" (agreement below
+        ``min_agreement``: the answer is HBEO's own), "ms"}."""
         t0 = time.perf_counter()
         cfg, model = self.cfg, self.model
         Rs, log_pr = self.hypotheses_rotations(pred, i)
@@ -260,10 +279,17 @@ class Verifier:
         out_probs = np.exp(best - logsumexp(best))
         o = coeffs[r, ci].astype(np.float32)
         grid = model.subspace.reconstruct(o[None], threshold=0.5)[0]
-        return {"probabilities": out_probs, "label": int(top[ci]), "rotation": Rs[r], "translation": ts[r],
-                "coeffs": o, "grid": grid,
-                "score": float(scores[r, ci]), "n_hypotheses": int(scores.size),
-                "ms": (time.perf_counter() - t0) * 1e3}
+        agree = depth_agreement(depth, shape_depth(surface_points(grid, size), Rs[r], ts[r], intrinsics),
+                                cfg.agreement_tol * size / OBJECT_VOXELS) if grid.any() else 0.0
+        out = {"probabilities": out_probs, "label": int(top[ci]), "rotation": Rs[r], "translation": ts[r],
+               "coeffs": o, "grid": grid, "score": float(scores[r, ci]), "n_hypotheses": int(scores.size),
+               "agreement": agree, "kept_network": agree < cfg.min_agreement}
+        if out["kept_network"]:                          # unsure: HBEO's own answer, as if not verified
+            out.update(probabilities=np.asarray(pred.probabilities[i], np.float64), label=int(pred.labels[i]),
+                       rotation=pred.rotation[i], translation=pred.translation[i],
+                       coeffs=np.asarray(pred.coeffs[i], np.float32), grid=pred.grids[i])
+        out["ms"] = (time.perf_counter() - t0) * 1e3
+        return out
 
     def _solve(self, depth, intrinsics, R, t, size, top, probs, o_net, P_net, log_pr) -> tuple[np.ndarray, np.ndarray]:
         """One rotation's hypotheses: the view carved at (R, t), the MAP coefficients of each class of

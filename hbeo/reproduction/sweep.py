@@ -13,6 +13,7 @@ May import: foundation, data, render, model and :mod:`hbeo.reproduction.evaluate
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -21,10 +22,13 @@ from hbeo.reproduction.evaluate import rendered_chunks, split_records, summarize
 
 
 def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int = 1, seed: int = 0,
-                 per_class: int | None = None, rolls: int = 1, progress: bool = True) -> dict[str, dict]:
+                 per_class: int | None = None, rolls: int = 1, progress: bool = True,
+                 thresholds: tuple = ()) -> dict[str, dict]:
     """{name: metrics dict (as ``evaluate``'s, with ``verify`` set)} for each of ``configs``
     ({name: VerifyConfig or None}) on ``views`` views of ``split``'s objects (``val`` or ``train``;
-    the first ``per_class`` of each class when given)."""
+    the first ``per_class`` of each class when given). ``thresholds``: for each verify candidate
+    also ``"<name> min_agreement=<x>"`` for each x, the same candidate with that ``min_agreement``
+    (HBEO's own answer wherever verify's agreement is below x), derived from the same queries."""
     from hbeo.model.verify import Verifier
     from hbeo.render.views import RenderSettings
     if split == "test":
@@ -34,6 +38,7 @@ def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int =
     records = split_records(dataset, split, per_class, model.settings.get("profile"))
     verifiers = {n: (Verifier(model, c) if c is not None else None) for n, c in configs.items()}
     rows: dict[str, list] = {n: [] for n in configs}
+    plain, agreement = [], {n: [] for n in configs}
     failures: list = []
     K = model.intrinsics
     bar = tqdm(total=len(records), desc=f"verify sweep {dataset.name}/{split}", disable=not progress)
@@ -44,13 +49,26 @@ def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int =
                 if not (depth > 0).any():
                     continue
                 p = model.predict(depth, K, rolls=rolls)
+                row = {"class": rec.cls, "R_true": v["rotation"][j], "truth": truth}
+                plain.append({**row, "pred": p.class_names[0], "R_pred": p.rotation[0], "grid": p.grids[0],
+                              "ms": p.timing_ms["total"]})
                 for n, ver in verifiers.items():
-                    q = ver.apply(depth, K, p) if ver is not None else p
-                    rows[n].append({"class": rec.cls, "pred": q.class_names[0], "R_true": v["rotation"][j],
-                                    "R_pred": q.rotation[0], "grid": q.grids[0], "truth": truth,
-                                    "ms": q.timing_ms["total"]})
+                    if ver is None:
+                        rows[n].append(plain[-1])
+                        continue
+                    x = ver.verify(depth, K, p)
+                    rows[n].append({**row, "pred": model.classes[x["label"]], "R_pred": x["rotation"],
+                                    "grid": x["grid"], "ms": p.timing_ms["total"] + x["ms"]})
+                    agreement[n].append(x["agreement"])
             bar.update(1)
     bar.close()
+    for n, c in list(configs.items()):
+        if c is None or c.min_agreement > 0:
+            continue
+        for x in thresholds:
+            name = f"{n} min_agreement={x:g}"
+            configs = {**configs, name: replace(c, min_agreement=float(x))}
+            rows[name] = [v if a >= x else {**h, "ms": v["ms"]} for v, h, a in zip(rows[n], plain, agreement[n])]
     out = {}
     for n, c in configs.items():
         m = summarize(rows[n], tuple(model.classes), dataset.name, split, views, seed, rs.sampler, False,

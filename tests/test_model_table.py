@@ -1,0 +1,56 @@
+"""The README's model table (hbeo.reproduction.model_table): generated from committed metrics files
+only, validation and test side by side; the committed README carries exactly the generated block."""
+import json
+from pathlib import Path
+
+import pytest
+
+from hbeo.errors import DataError
+from hbeo.reproduction.model_table import BEGIN, END, model_table, replace_block, write_model_table
+from hbeo.rundir import RunDir
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _metrics(split, acc, n):
+    return {"split": split, "accuracy": acc, "n_queries": n, "pose_error_deg": {"median": 12.34, "within_30": 0.5},
+            "completion": {"iou": 0.4567}, "runtime_ms": {"mean_per_query": 3.21}}
+
+
+def test_table_rows_come_from_the_named_files(tmp_path):
+    (tmp_path / "v1.json").write_text(json.dumps(_metrics("val", 0.75, 30)))
+    (tmp_path / "t1.json").write_text(json.dumps(_metrics("test", 0.7, 90)))
+    (tmp_path / "v2.json").write_text(json.dumps(_metrics("val", 0.6, 30)))
+    rows = [{"label": "A", "val": "v1.json", "test": "t1.json", "chosen": True},
+            {"label": "B", "val": "v2.json", "test": None, "chosen": False, "note": "tried"}]
+    RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
+    table = model_table(tmp_path)
+    lines = table.splitlines()
+    assert len(lines) == 4
+    assert lines[2].startswith("| A | yes | 75.0 % / 70.0 % | 12.3° / 12.3° | 50.0 % / 50.0 % | 0.457 / 0.457")
+    assert lines[2].endswith("| 30 / 90 |")
+    assert lines[3].startswith("| B (tried) | no | 60.0 % / – |")
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{BEGIN}\nold\n{END}\nrest\n")
+    write_model_table(tmp_path, readme)
+    assert readme.read_text() == f"intro\n{BEGIN}\n{table}{END}\nrest\n"
+    assert RunDir(tmp_path).model_table.read_text() == table
+    # a test file in the validation column, or a missing file, is refused with the file named
+    rows[1]["val"] = "t1.json"
+    RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
+    with pytest.raises(DataError, match="t1.json.*split 'test'"):
+        model_table(tmp_path)
+    rows[1]["val"] = "nope.json"
+    RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
+    with pytest.raises(DataError, match="nope.json"):
+        model_table(tmp_path)
+    with pytest.raises(ValueError, match="one model-table block"):
+        replace_block("no block", table)
+
+
+def test_the_committed_readme_carries_the_generated_model_table():
+    run = ROOT / "results" / "cpu-modelnet10-vox30"
+    text = (ROOT / "README.md").read_text()
+    assert replace_block(text, model_table(run)) == text, \
+        "README's model table is stale: python -m hbeo report --model-table --run results/cpu-modelnet10-vox30 " \
+        "--readme README.md"
