@@ -82,6 +82,12 @@ def test_evaluate_writes_the_documented_keys(trained, tmp_path):
     assert m["method"] == "hbeo" and m["pose"] == "3dof" and not m["given_class"] and m["precision"] == "float32"
     assert set(m["completion_baseline"]) == {"predicted_class", "true_class", "true_class_iou_t03"}
     assert len(m["per_query"]["pose_deg"]) == 10
+    # queries are named by object and view: the same pair is the same image for every method (paired comparisons)
+    from hbeo import config
+    from hbeo.data import datasets
+    ids = [r.id for r in datasets.get_dataset("procedural", profile=config.get_profile("ci")).records(
+        split="test", per_class=1)]
+    assert m["per_query"]["object"] == ids and m["per_query"]["view"] == [0] * 10
 
 
 @pytest.mark.parametrize("method, pose, given", [("beo", "known", False), ("beo", "1dof", False),

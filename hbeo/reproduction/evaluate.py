@@ -32,8 +32,11 @@ or predicted, ``{file, reason, step, object, split}``: left out, the others stil
                                      ``pose_median_deg``, ``pose_median_sym_deg``, ``pose_within_30``, ``edt``,
                                      ``naive``, ``iou``}}
 ``confusion``                        rows: true class, columns: predicted class (counts)
-``per_query``                        columns over queries (for distributions): ``class``, ``pred``,
-                                     ``pose_deg``, ``pose_sym_deg``, ``edt``, ``naive``, ``iou``, ``ms``
+``per_query``                        columns over queries (for distributions and paired comparisons):
+                                     ``object`` (the record's id), ``view`` (its view index: the same
+                                     object, view and seed is the same image for every method),
+                                     ``class``, ``pred``, ``pose_deg``, ``pose_sym_deg``, ``edt``,
+                                     ``naive``, ``iou``, ``ms``
 """
 from __future__ import annotations
 
@@ -130,7 +133,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                     ms = (time.perf_counter() - t0) * 1e3
                     pred = classes[int(np.argmax(out["probabilities"]))]
                     R_pred, grid = out["rotation"], out["grid"]
-                row = {"class": rec.cls, "pred": pred, "R_true": v["rotation"][j], "R_pred": R_pred,
+                row = {"object": rec.id, "view": j, "class": rec.cls, "pred": pred, "R_true": v["rotation"][j],
+                       "R_pred": R_pred,
                        "grid": grid, "truth": truth, "ms": ms}
                 if means is not None:
                     row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
@@ -229,7 +233,9 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
                            "median_per_query": float(np.median([r["ms"] for r in rows]))},
             "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
-            "per_query": {"class": cls.tolist(), "pred": [r["pred"] for r in rows], "pose_deg": raw.round(4).tolist(),
+            "per_query": {**({"object": [r["object"] for r in rows], "view": [int(r["view"]) for r in rows]}
+                             if all("object" in r for r in rows) else {}),
+                          "class": cls.tolist(), "pred": [r["pred"] for r in rows], "pose_deg": raw.round(4).tolist(),
                           "pose_sym_deg": sym.round(4).tolist(), "edt": edt.round(6).tolist(),
                           "naive": nai.round(6).tolist(), "iou": io.round(6).tolist(),
                           "ms": [round(float(r["ms"]), 4) for r in rows]},

@@ -49,7 +49,7 @@ def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int =
                 if not (depth > 0).any():
                     continue
                 p = model.predict(depth, K, rolls=rolls)
-                row = {"class": rec.cls, "R_true": v["rotation"][j], "truth": truth}
+                row = {"object": rec.id, "view": j, "class": rec.cls, "R_true": v["rotation"][j], "truth": truth}
                 plain.append({**row, "pred": p.class_names[0], "R_pred": p.rotation[0], "grid": p.grids[0],
                               "ms": p.timing_ms["total"]})
                 for n, ver in verifiers.items():
