@@ -19,7 +19,10 @@ def _metrics(split, acc, n):
 
 def test_table_rows_come_from_the_named_files(tmp_path):
     (tmp_path / "v1.json").write_text(json.dumps(_metrics("val", 0.75, 30)))
-    (tmp_path / "t1.json").write_text(json.dumps(_metrics("test", 0.7, 90)))
+    test = _metrics("test", 0.7, 90)
+    test["per_query"] = {"object": ["a", "a", "b"], "class": ["x", "x", "y"], "pred": ["x", "y", "y"],
+                         "pose_deg": [10.0, 50.0, 20.0], "iou": [0.5, 0.7, 0.2]}
+    (tmp_path / "t1.json").write_text(json.dumps(test))
     (tmp_path / "v2.json").write_text(json.dumps(_metrics("val", 0.6, 30)))
     rows = [{"label": "A", "val": "v1.json", "test": "t1.json", "chosen": True},
             {"label": "B", "val": "v2.json", "test": None, "chosen": False, "note": "tried"}]
@@ -27,7 +30,10 @@ def test_table_rows_come_from_the_named_files(tmp_path):
     table = model_table(tmp_path)
     lines = table.splitlines()
     assert len(lines) == 4
-    assert lines[2].startswith("| A | yes | 75.0 % / 70.0 % | 12.3° / 12.3° | 50.0 % / 50.0 % | 0.457 / 0.457")
+    # test cells carry a 95 % interval over objects (from per_query; a and b resampled as units)
+    cells = [c.strip() for c in lines[2].split("|")[1:-1]]
+    assert cells[:2] == ["A", "yes"] and cells[2].startswith("75.0 % / 70.0 % [") and cells[2].endswith("]")
+    assert cells[3].startswith("12.3° / 12.3° [") and cells[5].startswith("0.457 / 0.457 [")
     assert lines[2].endswith("| 30 / 90 |")
     assert lines[3].startswith("| B (tried) | no | 60.0 % / – |")
     readme = tmp_path / "README.md"

@@ -7,12 +7,13 @@ A run folder's ``models.json`` (:attr:`hbeo.rundir.RunDir.model_rows`) lists the
 
 Each names metrics files of the same folder (``python -m hbeo evaluate`` output). Configurations are
 compared on the validation objects; only rows marked ``chosen`` (picked there) have a test
-column, each evaluated on the test split once. :func:`model_table` renders the Markdown table from
+column, each evaluated on the test split once; test figures carry 95 % intervals from a bootstrap
+over test objects (:mod:`hbeo.reproduction.intervals`). :func:`model_table` renders the Markdown table from
 those files alone, :func:`write_model_table` writes it to :attr:`hbeo.rundir.RunDir.model_table`
 and, given the README, replaces the block between :data:`BEGIN` and :data:`END` with it; so every
 figure in the table traces to a committed JSON file (a test regenerates the block and compares).
 
-May import: foundation.
+May import: foundation and :mod:`hbeo.reproduction.intervals`.
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ import json
 from pathlib import Path
 
 from hbeo.errors import DataError
+from hbeo.reproduction.intervals import interval
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -28,10 +30,19 @@ END = "<!-- /model-table -->"
 _COLUMNS = ("accuracy", "pose median", "within 30°", "IoU", "ms/query")
 
 
-def _figures(m: dict) -> list[str]:
+def _figures(m: dict, ci: bool = False) -> list[str]:
+    """The row's cells of one metrics dict; ``ci``: with 95 % intervals over objects
+    (:func:`hbeo.reproduction.intervals.interval`, 1,000 resamples)."""
     pose = m["pose_error_deg"]
-    return [f"{100 * m['accuracy']:.1f} %", f"{pose['median']:.1f}°", f"{100 * pose['within_30']:.1f} %",
-            f"{m['completion']['iou']:.3f}", f"{m['runtime_ms']['mean_per_query']:.1f}"]
+    cells = [f"{100 * m['accuracy']:.1f} %", f"{pose['median']:.1f}°", f"{100 * pose['within_30']:.1f} %",
+             f"{m['completion']['iou']:.3f}", f"{m['runtime_ms']['mean_per_query']:.1f}"]
+    if ci and "per_query" in m:
+        for i, (what, fmt) in enumerate((("accuracy", "{:.1f}"), ("pose_median", "{:.0f}"), ("within_30", "{:.1f}"),
+                                         ("iou", "{:.3f}"))):
+            _, lo, hi = interval(m, what, n_boot=1000)
+            scale = 100 if what in ("accuracy", "within_30") else 1
+            cells[i] += f" [{fmt.format(scale * lo)}, {fmt.format(scale * hi)}]"
+    return cells
 
 
 def _load(run: RunDir, name: str | None, split: str) -> dict | None:
@@ -61,7 +72,7 @@ def model_table(run) -> str:
         if val is None:
             raise DataError(run.model_rows, f"row {r.get('label')!r} has no validation metrics file")
         a = _figures(val)
-        b = _figures(test) if test is not None else ["–"] * len(a)
+        b = _figures(test, ci=True) if test is not None else ["–"] * len(a)
         n = f"{val['n_queries']} / {test['n_queries'] if test else '–'}"
         label = r["label"] + (f" ({r['note']})" if r.get("note") else "")
         lines.append("| " + " | ".join([label, "yes" if r.get("chosen") else "no"] +

@@ -1,0 +1,42 @@
+"""Bootstrap intervals over objects (hbeo.reproduction.intervals)."""
+import numpy as np
+import pytest
+
+from hbeo.reproduction.intervals import cluster_bootstrap, interval
+
+
+def test_interval_covers_the_truth_and_narrows_with_more_objects():
+    rng = np.random.default_rng(1)
+    widths = []
+    for n in (50, 800):
+        x = rng.random(n) < 0.7
+        est, lo, hi = cluster_bootstrap(x, np.arange(n), n_boot=500)
+        assert lo <= 0.7 <= hi and lo <= est <= hi
+        widths.append(hi - lo)
+    assert widths[1] < widths[0] / 2.5                    # ~ 1 / sqrt(n)
+    assert cluster_bootstrap(x, np.arange(800), n_boot=500) == cluster_bootstrap(x, np.arange(800), n_boot=500)
+
+
+def test_views_of_one_object_are_resampled_together():
+    """Three identical views per object carry the information of one: the object bootstrap's interval
+    matches the one-view-per-object interval, the query bootstrap's is too narrow."""
+    rng = np.random.default_rng(2)
+    per_object = (rng.random(200) < 0.6).astype(float)
+    views = np.repeat(per_object, 3)
+    objects = np.repeat(np.arange(200), 3)
+    _, lo1, hi1 = cluster_bootstrap(per_object, np.arange(200), n_boot=1000)
+    _, lo3, hi3 = cluster_bootstrap(views, objects, n_boot=1000)
+    _, lq, hq = cluster_bootstrap(views, np.arange(600), n_boot=1000)
+    assert abs((hi3 - lo3) - (hi1 - lo1)) < 0.02 and (hq - lq) < 0.75 * (hi3 - lo3)
+
+
+def test_interval_of_a_metrics_dict_and_bad_input():
+    q = {"object": ["a", "a", "b", "c"], "class": ["x", "x", "y", "y"], "pred": ["x", "y", "y", "y"],
+         "pose_deg": [10.0, 50.0, 20.0, 100.0], "iou": [0.5, 0.7, 0.2, 0.4]}
+    m = {"per_query": q}
+    assert interval(m, "accuracy")[0] == 0.75 and interval(m, "iou")[0] == pytest.approx(0.45)
+    assert interval(m, "pose_median")[0] == 35.0 and interval(m, "within_30")[0] == 0.5
+    with pytest.raises(ValueError, match="unknown statistic"):
+        interval(m, "speed")
+    with pytest.raises(ValueError, match="must be equal"):
+        cluster_bootstrap(np.ones(3), np.ones(2))
