@@ -10,8 +10,10 @@ PY=${1:-.venv/bin/python}
 D=modelnet10-vox30
 R=results/cpu-$D
 RU=results/cpu-$D-upright
-$PY -m hbeo train --dataset $D --profile cpu --quiet
-$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_axis_angle.json
+# (the axis-angle model was the run's model.hbeo until issue 16's reference model replaced it:
+#  scripts/issue16_reference.sh)
+$PY -m hbeo train --dataset $D --profile cpu --name model_axis_angle.hbeo --quiet
+$PY -m hbeo evaluate --model $R/model_axis_angle.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_axis_angle.json
 $PY -m hbeo train --dataset $D --profile cpu --rotation 6d --name model_6d.hbeo --quiet
 $PY -m hbeo evaluate --model $R/model_6d.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_6d.json
 for opts in "bins:" "bins_roll:--augment-roll" "bins_roll20:--augment-roll --epochs 20" "bins_roll30:--augment-roll --epochs 30"; do
