@@ -33,7 +33,7 @@ _PAPER_SETTING = {"known_pose": "known", "unknown_pose_1dof": "1dof", "unknown_p
 
 def label(metrics: dict) -> str:
     key = (metrics["method"], metrics["pose"])
-    return LABELS.get(key, f"{key[0]} ({key[1]})")
+    return LABELS.get(key, f"{key[0]} ({key[1]})") + (" + verify" if metrics.get("verify") else "")
 
 
 def paper_table(name: str) -> pd.DataFrame:
