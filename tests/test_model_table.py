@@ -6,7 +6,8 @@ from pathlib import Path
 import pytest
 
 from hbeo.errors import DataError
-from hbeo.reproduction.model_table import BEGIN, END, model_table, replace_block, write_model_table
+from hbeo.reproduction.model_table import (BEGIN, END, TARGETS_BEGIN, TARGETS_END, model_table, replace_block,
+                                           targets_table, write_model_table)
 from hbeo.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,7 +25,7 @@ def test_table_rows_come_from_the_named_files(tmp_path):
                          "pose_deg": [10.0, 50.0, 20.0], "iou": [0.5, 0.7, 0.2]}
     (tmp_path / "t1.json").write_text(json.dumps(test))
     (tmp_path / "v2.json").write_text(json.dumps(_metrics("val", 0.6, 30)))
-    rows = [{"label": "A", "val": "v1.json", "test": "t1.json", "chosen": True},
+    rows = [{"label": "A", "val": "v1.json", "test": "t1.json", "chosen": True, "target_role": "hbeo"},
             {"label": "B", "val": "v2.json", "test": None, "chosen": False, "note": "tried"}]
     RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
     table = model_table(tmp_path)
@@ -37,10 +38,13 @@ def test_table_rows_come_from_the_named_files(tmp_path):
     assert lines[2].endswith("| 30 / 90 |")
     assert lines[3].startswith("| B (tried) | no | 60.0 % / – |")
     readme = tmp_path / "README.md"
-    readme.write_text(f"intro\n{BEGIN}\nold\n{END}\nrest\n")
+    targets = targets_table(tmp_path)
+    assert "| class accuracy | ≥ 81.8 % with verify, ≥ 78 % alone | 70.0%: missed |" in targets
+    assert "| pose error, raw median | ≤ 20° | 12.3°: met |" in targets and "| ms per query" in targets
+    readme.write_text(f"intro\n{BEGIN}\nold\n{END}\nmid\n{TARGETS_BEGIN}\nx\n{TARGETS_END}\nrest\n")
     write_model_table(tmp_path, readme)
-    assert readme.read_text() == f"intro\n{BEGIN}\n{table}{END}\nrest\n"
-    assert RunDir(tmp_path).model_table.read_text() == table
+    assert readme.read_text() == f"intro\n{BEGIN}\n{table}{END}\nmid\n{TARGETS_BEGIN}\n{targets}{TARGETS_END}\nrest\n"
+    assert RunDir(tmp_path).model_table.read_text() == table + "\n" + targets
     # a test file in the validation column, or a missing file, is refused with the file named
     rows[1]["val"] = "t1.json"
     RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
@@ -50,7 +54,7 @@ def test_table_rows_come_from_the_named_files(tmp_path):
     RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
     with pytest.raises(DataError, match="nope.json"):
         model_table(tmp_path)
-    with pytest.raises(ValueError, match="one model-table block"):
+    with pytest.raises(ValueError, match="one generated block"):
         replace_block("no block", table)
 
 
@@ -58,5 +62,8 @@ def test_the_committed_readme_carries_the_generated_model_table():
     run = ROOT / "results" / "cpu-modelnet10-vox30"
     text = (ROOT / "README.md").read_text()
     assert replace_block(text, model_table(run)) == text, \
+        "README's model table is stale: python -m hbeo report --model-table --run results/cpu-modelnet10-vox30 " \
+        "--readme README.md"
+    assert replace_block(text, targets_table(run), begin=TARGETS_BEGIN, end=TARGETS_END) == text, \
         "README's model table is stale: python -m hbeo report --model-table --run results/cpu-modelnet10-vox30 " \
         "--readme README.md"
