@@ -22,15 +22,21 @@ def test_table_rows_come_from_the_named_files(tmp_path):
     (tmp_path / "v1.json").write_text(json.dumps(_metrics("val", 0.75, 30)))
     test = _metrics("test", 0.7, 90)
     test["per_query"] = {"object": ["a", "a", "b"], "class": ["x", "x", "y"], "pred": ["x", "y", "y"],
-                         "pose_deg": [10.0, 50.0, 20.0], "iou": [0.5, 0.7, 0.2]}
+                         "pose_deg": [10.0, 50.0, 20.0], "iou": [0.5, 0.7, 0.2], "edt": [10.0, 30.0, 50.0]}
+    test["completion"]["edt"] = 30.0
+    beo = _metrics("test", 0.8, 90)
+    beo["per_query"] = {**test["per_query"], "edt": [20.0, 25.0, 40.0]}
+    beo["completion"]["edt"] = 28.0
+    (tmp_path / "b.json").write_text(json.dumps(beo))
     (tmp_path / "t1.json").write_text(json.dumps(test))
     (tmp_path / "v2.json").write_text(json.dumps(_metrics("val", 0.6, 30)))
     rows = [{"label": "A", "val": "v1.json", "test": "t1.json", "chosen": True, "target_role": "hbeo"},
-            {"label": "B", "val": "v2.json", "test": None, "chosen": False, "note": "tried"}]
+            {"label": "B", "val": "v2.json", "test": None, "chosen": False, "note": "tried"},
+            {"label": "BEO", "val": "v2.json", "test": "b.json", "chosen": False, "target_role": "beo-known"}]
     RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
     table = model_table(tmp_path)
     lines = table.splitlines()
-    assert len(lines) == 4
+    assert len(lines) == 5
     # test cells carry a 95 % interval over objects (from per_query; a and b resampled as units)
     cells = [c.strip() for c in lines[2].split("|")[1:-1]]
     assert cells[:2] == ["A", "yes"] and cells[2].startswith("75.0 % / 70.0 % [") and cells[2].endswith("]")
@@ -39,8 +45,11 @@ def test_table_rows_come_from_the_named_files(tmp_path):
     assert lines[3].startswith("| B (tried) | no | 60.0 % / – |")
     readme = tmp_path / "README.md"
     targets = targets_table(tmp_path)
-    assert "| class accuracy | ≥ 81.8 % with verify, ≥ 78 % alone | 70.0%: missed |" in targets
-    assert "| pose error, raw median | ≤ 20° | 12.3°: met |" in targets and "| ms per query" in targets
+    assert "| class accuracy | ≥ 81.8 % with verify, ≥ 78 % alone | 70.0%: missed | 80.0% |" in targets
+    assert "| pose error, raw median | ≤ 20° | 12.3°: met | 12.3° |" in targets and "| ms per query" in targets
+    # EDT against the reference row (BEO, known pose): mean 30 vs 28 missed, median 30 vs 25 missed
+    assert "| completion e′ (EDT), mean | below BEO's with known pose (same views) | 30: missed | 28 |" in targets
+    assert "| completion e′ (EDT), median | below BEO's with known pose (same views) | 30: missed | 25 |" in targets
     readme.write_text(f"intro\n{BEGIN}\nold\n{END}\nmid\n{TARGETS_BEGIN}\nx\n{TARGETS_END}\nrest\n")
     write_model_table(tmp_path, readme)
     assert readme.read_text() == f"intro\n{BEGIN}\n{table}{END}\nmid\n{TARGETS_BEGIN}\n{targets}{TARGETS_END}\nrest\n"
