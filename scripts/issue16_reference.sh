@@ -24,3 +24,27 @@ $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --
 # 3. verify settings, on validation views only (rows appended to verify_sweep.csv)
 $PY scripts/tune_verify.py --model $R/model.hbeo --per-class 40 --thresholds 0.3,0.45 hbeo default \
     "classes=1,class_weight=0" "classes=1,class_weight=0,rotations=2" "classes=1,class_weight=0,noise_var=0.3"
+# 4. the chosen rows, on validation (3 views) and once on the test split, seeds 0 and 1; BEO with known pose on
+#    the same test views (the targets' reference). VerifyConfig's defaults are the chosen verify settings.
+$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --verify --quiet \
+    --out $R/eval_val-ref-verify.json
+for s in 0 1; do
+  sfx=$([ $s = 0 ] && echo "" || echo "-s$s")
+  $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 3 --seed $s --quiet --out $R/eval_test-ref$sfx.json
+  $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 3 --seed $s --rolls 4 --verify --quiet \
+      --out $R/eval_test-ref-verify$sfx.json
+done
+$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
+    --out $R/eval_test-ref-rolls4.json
+$PY -m hbeo evaluate --model $R/model.hbeo --method beo --pose known --dataset $D --split test --views 3 --seed 0 \
+    --quiet --out $R/eval_test-beo-known.json
+# 5. the README's model and targets tables, and the confusion matrices of the chosen rows
+$PY -m hbeo report --model-table --run $R --readme README.md
+$PY - <<'PYEOF'
+import json
+from hbeo.reproduction.figures import save
+from hbeo.reproduction.paper_figures import confusion_grid
+R = "results/cpu-modelnet10-vox30"
+ev = [json.load(open(f"{R}/eval_test-ref-rolls4.json")), json.load(open(f"{R}/eval_test-ref-verify.json"))]
+save(confusion_grid(ev, "reference model, test split (907 objects x 3 views, seed 0), 4 rolls"), R, "16_confusion_test")
+PYEOF

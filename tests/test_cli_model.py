@@ -242,8 +242,8 @@ def test_verify_sweep_scores_every_candidate_on_the_same_queries_and_refuses_the
     from hbeo.reproduction.sweep import sweep_rows, verify_sweep
     model = HBEO.load(trained / "model.hbeo")
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
-    res = verify_sweep(model, ds, {"hbeo": None, "one class": VerifyConfig(classes=1, rotations=2)}, progress=False,
-                       thresholds=(0, 1.01))
+    one = VerifyConfig(classes=1, rotations=2, min_agreement=0)
+    res = verify_sweep(model, ds, {"hbeo": None, "one class": one}, progress=False, thresholds=(0, 1.01))
     ref = evaluate_model(model, ds, split="val", progress=False)
     assert res["hbeo"]["per_query"]["pred"] == ref["per_query"]["pred"]
     assert res["hbeo"]["per_query"]["iou"] == ref["per_query"]["iou"]

@@ -97,7 +97,7 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
     truth = record_grid(rec)
     at_truth = replace(pred, rotation=a["rotation"][:1].astype(np.float64),
                        translation=a["translation"][:1].astype(np.float64))
-    out = Verifier(model, VerifyConfig(rotations=1, class_weight=0.0, refine_translation=False)).verify(
+    out = Verifier(model, VerifyConfig(classes=3, rotations=1, class_weight=0.0, refine_translation=False)).verify(
         d, model.intrinsics, at_truth)
     assert iou(truth, out["grid"]) > iou(truth, pred.grids[0]) + 0.1
     assert out["n_hypotheses"] == 3 and out["probabilities"].sum() == pytest.approx(1.0)
@@ -109,6 +109,13 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
     q = v.apply(d, model.intrinsics, pred)
     assert q.grids.shape == pred.grids.shape and q.timing_ms["verify"] > 0      # verify is timed, in the total
     assert q.timing_ms["total"] == pytest.approx(pred.timing_ms["total"] + q.timing_ms["verify"])
+    # one class tried: the network's class and probabilities stand; an unmeetable agreement keeps HBEO's answer
+    one = Verifier(model, VerifyConfig(classes=1, min_agreement=0)).verify(d, model.intrinsics, pred)
+    assert one["label"] == pred.labels[0] and np.allclose(one["probabilities"], pred.probabilities[0])
+    assert 0 <= one["agreement"] <= 1 and not one["kept_network"]
+    kept = Verifier(model, VerifyConfig(classes=1, min_agreement=1.01)).verify(d, model.intrinsics, pred)
+    assert kept["kept_network"] and np.array_equal(kept["grid"], pred.grids[0])
+    assert np.array_equal(kept["rotation"], pred.rotation[0])
 
 
 def test_evaluate_with_verify_reports_its_settings_and_refuses_baselines(model_and_view):
