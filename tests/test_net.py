@@ -115,3 +115,25 @@ def test_bins_loss_is_lowest_at_the_truth_and_needs_the_grid():
         pose_to_matrix(good["pose"], "bins")
     assert net(torch.rand(2, 1, 24, 32))["pose"].shape == (2, 512)
     assert "bin_rotations" not in net.state_dict()
+
+
+def test_voxel_shape_loss_is_the_occupancy_error_through_the_orthonormal_basis():
+    """``--shape-loss voxels``: the coefficient term is ||W (c_hat - c)|| on raw coefficients (W orthonormal),
+    divided by rms(std); the paper's loss keeps its configuration (no shape_loss key)."""
+    from hbeo.model.fit import HBEONetTask
+    torch.manual_seed(0)
+    cfg = NetConfig(image_size=(32, 24), n_classes=3, n_coeffs=5, conv_channels=(4, 4, 4, 4), fc=(8, 8, 8), kernel=3)
+    std = np.array([4.0, 2.0, 1.0, 0.5, 0.1], np.float32)
+    W, _ = np.linalg.qr(np.random.default_rng(0).normal(size=(40, 5)))            # orthonormal basis
+    net = HBEONet(cfg)
+    batch = {"depth": torch.rand(6, 1, 24, 32), "label": torch.randint(0, 3, (6,)),
+             "axis_angle": torch.zeros(6, 3), "rotation": torch.eye(3).repeat(6, 1, 1), "coeffs": torch.randn(6, 5)}
+    _, paper = HBEONetTask(cfg).loss(net, batch)
+    _, vox = HBEONetTask(cfg, coeff_std=std).loss(net, batch)
+    with torch.no_grad():
+        dz = (net(batch["depth"])["coeffs"] - batch["coeffs"]).numpy()
+    grid_err = np.linalg.norm((dz * std) @ W.T, axis=1)                            # occupancy error, voxel space
+    assert vox["coeff"] == pytest.approx(float(np.mean(grid_err) / np.sqrt(np.mean(std ** 2))), rel=1e-5)
+    assert paper["coeff"] == pytest.approx(float(np.linalg.norm(dz, axis=1).mean()), rel=1e-5)
+    assert "shape_loss" not in HBEONetTask(cfg).config()
+    assert HBEONetTask(cfg, coeff_std=std).config()["shape_loss"] == "voxels"
