@@ -219,15 +219,15 @@ def _write_json(path, obj) -> None:
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 
 
-def _verifier(args, model):
-    """The verify step ``--verify`` / ``--verify-set`` ask for, or None (``--verify-set`` alone is an error)."""
+def _verify_config(args):
+    """The verify settings ``--verify`` / ``--verify-set`` ask for, or None (``--verify-set`` alone is an error)."""
     if args.verify_set and not args.verify:
         raise HBEOError("--verify-set needs --verify")
     if not args.verify:
         return None
-    from hbeo.model.verify import Verifier, VerifyConfig
+    from hbeo.model.verify import VerifyConfig
     try:
-        return Verifier(model, VerifyConfig.parse(args.verify_set))
+        return VerifyConfig.parse(args.verify_set)
     except ValueError as err:
         raise HBEOError(f"--verify-set: {err}") from None
 
@@ -253,8 +253,12 @@ def cmd_predict(args) -> int:
     depth = read_depth(args.depth, args.depth_scale)
     K = parse_intrinsics(args.intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(args.mask, depth.shape) if args.mask else None
+    verify = _verify_config(args)                       # bad settings fail before the model is read
     model = HBEO.load(args.model, precision=args.precision)
-    verifier = _verifier(args, model)
+    verifier = None
+    if verify is not None:
+        from hbeo.model.verify import Verifier
+        verifier = Verifier(model, verify)
     try:
         pred = model.predict(depth, K, mask, rolls=args.rolls)
     except DataError as err:              # an input the model cannot see: name the depth file
@@ -302,7 +306,7 @@ def cmd_evaluate(args) -> int:
                                                             progress=not args.quiet, max_steps=args.max_steps)
     if args.verify and method is not None:
         raise HBEOError("--verify applies to --method hbeo (HBEO's own answers), not to a baseline")
-    verify = _verifier(args, model).cfg if args.verify else None
+    verify = _verify_config(args)           # evaluate_model builds the verifier (its per-model set-up) once
     metrics = evaluate_model(model, ds, split=args.split, views=args.views, seed=args.seed, sampler=args.sampler,
                              noise=args.noise, per_class=args.per_class, progress=not args.quiet,
                              method=method, pose=pose, rolls=args.rolls, verify=verify)

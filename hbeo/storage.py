@@ -84,6 +84,16 @@ def atomic_text(path, text: str) -> None:
         f.write(text)
 
 
+def append_csv(path, rows: list[dict]) -> None:
+    """Append ``rows`` (dicts, one per line) to the CSV table at ``path`` (created with a header when
+    missing; columns new to it are added, left empty in older rows). The whole table is rewritten
+    atomically (:func:`atomic_text`), so an interruption never leaves a half-written file."""
+    import pandas as pd
+    path = Path(path)
+    old = pd.read_csv(path) if path.exists() else pd.DataFrame()
+    atomic_text(path, pd.concat([old, pd.DataFrame(rows)], ignore_index=True).to_csv(index=False))
+
+
 def sha256_file(path, chunk_size: int = 1 << 20) -> str:
     """Hex sha256 of a file, read in chunks."""
     h = hashlib.sha256()

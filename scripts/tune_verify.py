@@ -5,12 +5,12 @@ Usage: python scripts/tune_verify.py --model results/cpu-modelnet10-vox30/model.
            [CANDIDATE ...]
 A candidate is ``hbeo`` (the network alone), ``default`` (VerifyConfig()) or ``key=value,...`` over
 the defaults (``python -m hbeo evaluate --verify-set`` syntax). Each row is appended to the model
-folder's ``verify_sweep.csv`` (hbeo.rundir.RunDir.verify_sweep) and printed. Never touches the test split.
+folder's ``verify_sweep.csv`` (hbeo.rundir.RunDir.verify_sweep; atomically, hbeo.storage.append_csv)
+and printed. Never touches the test split.
 """
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 
@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     from hbeo.model.verify import VerifyConfig
     from hbeo.reproduction.sweep import sweep_rows, verify_sweep
     from hbeo.rundir import RunDir
-    from hbeo.storage import sha256_file
+    from hbeo.storage import append_csv, sha256_file
     model = HBEO.load(args.model)
     ds = datasets.get_dataset(args.dataset, profile=config.get_profile(model.settings.get("profile", "cpu")))
     configs = {c: (None if c == "hbeo" else VerifyConfig.parse("" if c == "default" else c)) for c in args.candidates}
@@ -41,13 +41,7 @@ def main(argv=None) -> int:
     rows = sweep_rows(res, sha256_file(args.model)[:16])
     for r in rows:
         r["model"] = Path(args.model).name
-    out = RunDir(Path(args.model).parent).verify_sweep
-    new = not out.exists()
-    with open(out, "a", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        if new:
-            w.writeheader()
-        w.writerows(rows)
+    append_csv(RunDir(Path(args.model).parent).verify_sweep, rows)
     for r in rows:
         print(f"{r['name']:48s} acc {r['accuracy']:.3f}  pose med {r['pose_median_deg']:6.1f}  "
               f"w30 {r['within_30']:.3f}  IoU {r['iou']:.3f}  {r['ms_per_query']:.1f} ms")

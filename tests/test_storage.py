@@ -62,3 +62,15 @@ def test_atomic_files_get_the_users_umask(tmp_path, umask, want):
     for name in ("a.bin", "b.txt", "c.txt", "d.npz"):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == want, name
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "b.txt", "c.txt", "d.npz"]   # no temporaries
+
+
+def test_append_csv_adds_rows_and_new_columns_through_a_temporary_file(tmp_path):
+    import pandas as pd
+    from hbeo.storage import append_csv
+    p = tmp_path / "log.csv"
+    append_csv(p, [{"a": 1, "b": 0.5}])
+    append_csv(p, [{"a": 2, "b": 0.25, "c": "x"}, {"a": 3, "b": 0.125, "c": "y"}])
+    t = pd.read_csv(p)
+    assert list(t.columns) == ["a", "b", "c"] and list(t.a) == [1, 2, 3] and list(t.b) == [0.5, 0.25, 0.125]
+    assert pd.isna(t.c[0]) and list(t.c[1:]) == ["x", "y"]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["log.csv"]           # no temporary file left

@@ -126,9 +126,9 @@ def targets_table(run) -> str:
     for name, target, get, ok, fmt in TARGETS:
         cells = []
         for r, m in evals:
-            x = fmt.format(get(m))
-            cells.append(x if r["target_role"] == REFERENCE else
-                         f"{x}: {'met' if ok(get(m), r['target_role'], ref) else 'missed'}")
+            x = get(m)
+            cells.append(fmt.format(x) if r["target_role"] == REFERENCE else
+                         f"{fmt.format(x)}: {'met' if ok(x, r['target_role'], ref) else 'missed'}")
         lines.append(f"| {name} | {target} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from hbeo import config
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_text, sha256_file
+from hbeo.storage import append_csv, atomic_text, sha256_file
 
 SEED = 0
 #: Every evaluation of a run, in the order the notebooks show them (Table II): (method, pose);
@@ -145,7 +145,6 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
     scores; the file is rewritten atomically. Every configuration tried is meant to leave its row,
     so a choice made on validation can be checked against all the others. Returns the row."""
     import datetime
-    import pandas as pd
     run = RunDir.of(run)
     pe = metrics["pose_error_deg"]
     row = {"time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
@@ -157,8 +156,5 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
            "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"], "pose_median_deg": pe["median"],
            "pose_median_sym_deg": pe["median_sym"], "within_30": pe["within_30"],
            "iou": metrics["completion"]["iou"]}
-    path = run.validation_log
-    old = pd.read_csv(path) if path.exists() else pd.DataFrame()
-    table = pd.concat([old, pd.DataFrame([row])], ignore_index=True)
-    atomic_text(path, table.to_csv(index=False))
+    append_csv(run.validation_log, [row])
     return row

@@ -62,13 +62,15 @@ def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int =
                     agreement[n].append(x["agreement"])
             bar.update(1)
     bar.close()
-    for n, c in list(configs.items()):
+    derived = {}
+    for n, c in configs.items():
         if c is None or c.min_agreement > 0:
             continue
         for x in thresholds:
             name = f"{n} min_agreement={x:g}"
-            configs = {**configs, name: replace(c, min_agreement=float(x))}
+            derived[name] = replace(c, min_agreement=float(x))
             rows[name] = [v if a >= x else {**h, "ms": v["ms"]} for v, h, a in zip(rows[n], plain, agreement[n])]
+    configs = {**configs, **derived}
     out = {}
     for n, c in configs.items():
         m = summarize(rows[n], tuple(model.classes), dataset.name, split, views, seed, rs.sampler, False,
