@@ -1,5 +1,6 @@
 # hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
-#   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/
+#   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/, training
+#                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile)
 #   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
 PYTHON ?= python3
@@ -17,7 +18,7 @@ $(VENV)/.installed: requirements.txt requirements-nodeps.txt scripts/setup.sh
 	touch $@
 
 reproduce: setup
-	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET)
+	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter 1,$(RESUME)),,--fresh)
 
 test: setup test-unit test-notebooks
 

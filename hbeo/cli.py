@@ -70,6 +70,13 @@ def cmd_voxelize(args) -> int:
     from hbeo.errors import DataError
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
+    if (args.out or "").endswith(".npz"):     # one file of every object, the published vox30 layout
+        from hbeo.data.gridfile import write_gridfile
+        res = write_gridfile(ds, args.out, workers=args.workers or prof.workers, strict=args.strict)
+        print(res.report())
+        if res.failures:
+            print(res.failure_report(), file=sys.stderr)
+        return 0
     run = RunDir.for_run(prof.name, args.dataset, args.out)
     splits, failures, total = ("train", "test"), [], 0
     for split in splits:
@@ -332,8 +339,7 @@ def cmd_convert_model(args) -> int:
 
 def cmd_reproduce(args) -> int:
     from hbeo.reproduction.notebooks import run_notebooks
-    run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out,
-                  only=args.only)
+    run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out, only=args.only, fresh=args.fresh)
     return 0
 
 
@@ -361,7 +367,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_data)
     p = sub.add_parser("voxelize", help="voxelize a dataset into 30^3 grids (cached, resumable)")
     _dataset_arg(p)
-    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET), or FILE.npz: every object "
+                                 "in one file of the published modelnet10_vox30.npz layout")
     p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 2 if any object fails (default: skip it, list it in failures.json)")
@@ -484,6 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
     p.add_argument("--only", nargs="*", help="notebook name prefixes to run (default: all)")
+    p.add_argument("--fresh", action="store_true", help="first remove the run's models, baselines and metrics")
     p.set_defaults(func=cmd_reproduce)
     p = sub.add_parser("report", help="write paper/REPRODUCTION.md (reported vs. reproduced) from a finished run")
     p.add_argument("--run", required=True, help="run folder, e.g. results/cpu-modelnet10-vox30")

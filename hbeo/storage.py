@@ -5,7 +5,8 @@ leaves a file that looks complete, and no file is ever unpickled:
 
 - :func:`atomic_file` / :func:`atomic_text`: write to a temporary name, then rename (the file gets
   the user's umask, as a plain ``open`` would give it);
-- :func:`sha256_file`: the content hash used by manifests and sidecars;
+- :func:`sha256_file`: the content hash used by manifests and sidecars; :func:`tree_digest`: of a source tree
+  (the code version in evaluation cache keys);
 - :func:`write_sidecar` / :func:`read_sidecar` / :func:`verify_sidecar`: a file's sha256 recorded
   beside it in ``<name>.sha256`` (``sha256sum`` format: ``<hex digest>  <name>``), so a later run
   can tell a finished file (download, render shard) from a damaged one;
@@ -100,6 +101,20 @@ def sha256_file(path, chunk_size: int = 1 << 20) -> str:
     with open(path, "rb") as f:
         while chunk := f.read(chunk_size):
             h.update(chunk)
+    return h.hexdigest()
+
+
+def tree_digest(root, pattern: str = "*.py", skip=()) -> str:
+    """Hex sha256 over the relative paths and contents of the files under ``root`` matching
+    ``pattern`` (sorted), leaving out relative paths listed in ``skip``: the code version of a
+    package, whatever the git state."""
+    root = Path(root)
+    h = hashlib.sha256()
+    for p in sorted(root.rglob(pattern)):
+        if "__pycache__" in p.parts or p.relative_to(root).as_posix() in skip:
+            continue
+        h.update(p.relative_to(root).as_posix().encode() + b"\0")
+        h.update(sha256_file(p).encode() + b"\n")
     return h.hexdigest()
 
 

@@ -34,21 +34,30 @@ def test_summary_keys_and_values():
     assert m["confusion"] == [[0, 1], [0, 1]]
 
 
-def test_evaluation_reads_its_cache_only_for_the_same_request(tmp_path):
-    """A cached eval_<method>_<pose>.json answers the same request (model file, objects, seed) without
-    loading anything; another request (other objects) must evaluate again, here failing on the model."""
+def test_evaluation_reads_its_cache_only_for_the_same_request(tmp_path, monkeypatch):
+    """A cached eval_<method>_<pose>.json answers the same request (code version, dataset, model and
+    baseline files, objects, views, seed) without loading anything; a change to any of them must
+    evaluate again, here failing on the (fake) model file."""
     import json
     import pytest
+    from hbeo.data import datasets
     from hbeo.errors import DataError
     from hbeo.reproduction import protocol
     from hbeo.rundir import RunDir
-    from hbeo.storage import sha256_file
     run = RunDir(tmp_path).create()
     run.model.write_bytes(b"not a model")
-    request = {"method": "beo", "pose": "3dof", "dataset": "procedural", "per_class": 1, "views": 1, "seed": 0,
-               "model_sha256": sha256_file(run.model)[:16]}
-    run.evaluation("beo", "3dof").write_text(json.dumps({"accuracy": 0.5, "request": request}))
+    run.baseline("beo").write_bytes(b"not a baseline")
+    ds = datasets.get_dataset("procedural", profile="ci")
+    req = protocol.request(run, ds, "ci", "beo", "3dof")
+    assert req["per_class"] == 1 and req["views"] == 1 and req["code"] == protocol.code_version()
+    assert req["baseline_sha256"] and req["model_sha256"] and req["dataset_fingerprint"] == ds.fingerprint()
+    run.evaluation("beo", "3dof").write_text(json.dumps({"accuracy": 0.5, "request": req}))
     assert protocol.evaluation(run, "procedural", "ci", "beo", "3dof")["accuracy"] == 0.5   # ci: 1 per class
     assert protocol.evaluation(str(tmp_path), "procedural", "ci", "beo", "3dof")["accuracy"] == 0.5
+    run.baseline("beo").write_bytes(b"another baseline")                 # the baseline file changed
     with pytest.raises(DataError):
-        protocol.evaluation(run, "procedural", "ci", "beo", "3dof", per_class=2)
+        protocol.evaluation(run, "procedural", "ci", "beo", "3dof")
+    run.baseline("beo").write_bytes(b"not a baseline")
+    monkeypatch.setattr(protocol, "code_version", lambda: "other code")   # the code changed
+    with pytest.raises(DataError):
+        protocol.evaluation(run, "procedural", "ci", "beo", "3dof")

@@ -19,6 +19,12 @@ Determinism
     ``np.random.default_rng([seed, split_code, p])`` (split_code 0 = train, 1 = test;
     :func:`object_rng`), so its images depend on nothing else.
 
+Query views (the paired test protocol)
+    Evaluation draws view ``j`` of an object from ``default_rng([seed, split_code, object_key, j])``
+    (:func:`query_rng`), where ``object_key`` (:func:`object_key`) is a hash of the object's class
+    and id: the same (object, view) is the same image whatever list the object sits in, however
+    many views are asked for, and for every method.
+
 Imports the foundation, :mod:`hbeo.data.gridset` and :mod:`hbeo.render` (poses, renderer, noise).
 """
 from __future__ import annotations
@@ -148,6 +154,20 @@ def object_rng(seed: int, split: str, position: int, epoch: int = 0) -> np.rando
     return np.random.default_rng(key + [int(epoch)] if epoch else key)
 
 
+def object_key(record) -> int:
+    """A stable integer of an object (class and id; below 2**62, far above any list position), the
+    key of its query views (:func:`query_rng`)."""
+    import hashlib
+    digest = hashlib.sha256(f"{record.cls}/{record.id}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 2
+
+
+def query_rng(seed: int, split: str, record, view: int) -> np.random.Generator:
+    """The random stream of query view ``view`` of ``record`` (pose and sensor noise):
+    ``default_rng([seed, split_code, object_key(record), view])``."""
+    return np.random.default_rng([int(seed), _split_code(split), object_key(record), int(view)])
+
+
 def _split_code(split: str) -> int:
     try:
         return SPLIT_CODES[split]
@@ -211,6 +231,19 @@ class ObjectViews:
         s = self.settings
         rng = object_rng(s.seed, split, position, epoch)
         R, t = s.view_sampler.sample(s.views_per_object, rng)
+        return self._render(record, position, label, R, t, [rng] * len(R))
+
+    def query_views(self, record, split: str, views: int, label: int = -1) -> dict:
+        """Query views 0 .. ``views``-1 of one object for evaluation, each from its own stream
+        (:func:`query_rng`: paired across methods and view counts); same arrays as :meth:`views`."""
+        rngs = [query_rng(self.settings.seed, split, record, j) for j in range(views)]
+        poses = [self.settings.view_sampler.sample(1, g) for g in rngs]
+        R = np.concatenate([p[0] for p in poses])
+        t = np.concatenate([p[1] for p in poses])
+        return self._render(record, object_key(record), label, R, t, rngs)
+
+    def _render(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list) -> dict:
+        s = self.settings
         try:
             mesh = self.render.record_mesh(record, object_size=s.object_size)
         except Exception as err:
@@ -223,11 +256,15 @@ class ObjectViews:
         except Exception as err:
             raise DataError(record.path or _record_name(record),
                             f"rendering object {_record_name(record)} failed ({type(err).__name__}: {err})") from err
-        n, (w, h) = s.views_per_object, s.image_size
+        n, (w, h) = len(R), s.image_size
         if depth.shape != (n, h, w):
             raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(n, h, w)}")
         if self.noise is not None:
-            depth = np.asarray(self.noise.apply(depth, self.intrinsics, rng), np.float32)
+            if all(g is rngs[0] for g in rngs):       # one stream for all views (a rendered set)
+                depth = np.asarray(self.noise.apply(depth, self.intrinsics, rngs[0]), np.float32)
+            else:                                     # each query view's own stream
+                depth = np.concatenate([np.asarray(self.noise.apply(depth[k:k + 1], self.intrinsics, g), np.float32)
+                                        for k, g in enumerate(rngs)])
         depth = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16)
         depth[~(depth > 0)] = 0                      # 0 = no object, never negative
         out = {

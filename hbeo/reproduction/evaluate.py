@@ -36,7 +36,8 @@ or predicted, ``{file, reason, step, object, split}``: left out, the others stil
                                      ``object`` (the record's id), ``view`` (its view index: the same
                                      object, view and seed is the same image for every method),
                                      ``class``, ``pred``, ``pose_deg``, ``pose_sym_deg``, ``edt``,
-                                     ``naive``, ``iou``, ``ms``
+                                     ``naive``, ``iou``, ``empty`` (the completed grid has no filled
+                                     voxel), ``ms``
 """
 from __future__ import annotations
 
@@ -49,6 +50,7 @@ from hbeo import __version__
 from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
 from hbeo.errors import DataError
+from hbeo.render.views import object_key
 from hbeo.rotations import geodesic_deg, z_angle_to_matrix
 from hbeo.rundir import failure
 from hbeo.subspace.metrics import edt_error, iou, naive_error
@@ -69,10 +71,11 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                    chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1, verify=None) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
-    Views come from :class:`hbeo.render.views.ObjectViews` with the model's render settings, ``views``
-    per object, ``seed``, ``noise`` and (if given) ``sampler``: object i of the split gets the same
-    random stream a rendered set of that split would give it. ``split``: ``train``, ``test`` or
-    ``val`` (:func:`split_records`; its views have a random stream of their own).
+    Views come from :meth:`hbeo.render.views.ObjectViews.query_views` with the model's render settings,
+    ``views`` per object, ``seed``, ``noise`` and (if given) ``sampler``: view j of an object is drawn
+    from a stream keyed by ``seed``, the split, the object's class and id, and j (the paired protocol:
+    every method, object subset and view count sees the same image for the same (object, view)).
+    ``split``: ``train``, ``test`` or ``val`` (:func:`split_records`; its views have a stream of their own).
 
     ``method``: None for the HBEO ``model`` itself, or a baseline (:mod:`hbeo.baselines.methods`) whose
     ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true, rng)`` answers
@@ -129,7 +132,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                         method.predict_view(depth, K, rng=np.random.default_rng([seed, 1]), **query)
                         warm = True
                     t0 = time.perf_counter()
-                    out = method.predict_view(depth, K, rng=np.random.default_rng([seed, 2, i, j]), **query)
+                    out = method.predict_view(depth, K, rng=np.random.default_rng([seed, 2, object_key(rec), j]),
+                                              **query)
                     ms = (time.perf_counter() - t0) * 1e3
                     pred = classes[int(np.argmax(out["probabilities"]))]
                     R_pred, grid = out["rotation"], out["grid"]
@@ -156,8 +160,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
 
 def rendered_chunks(rs, records, split: str, chunk: int, failures: list, bar):
     """Render ``records`` with settings ``rs`` ``chunk`` objects at a time: yields lists of (index,
-    record, views dict of :meth:`ObjectViews.views`, true grid). Object i gets the random stream of
-    object i of the split; the renderer is closed before each chunk is yielded (its threads would
+    record, views dict of :meth:`ObjectViews.query_views` (``rs.views_per_object`` views), true grid);
+    the renderer is closed before each chunk is yielded (its threads would
     compete with the caller's and distort runtimes). A bad object is appended to ``failures`` and skipped."""
     from hbeo.render.views import ObjectViews
     for start in range(0, len(records), chunk):
@@ -165,7 +169,8 @@ def rendered_chunks(rs, records, split: str, chunk: int, failures: list, bar):
         try:
             for i in range(start, min(start + chunk, len(records))):
                 try:
-                    batch.append((i, records[i], viewer.views(records[i], i, -1, split), record_grid(records[i])))
+                    batch.append((i, records[i], viewer.query_views(records[i], split, rs.views_per_object),
+                                  record_grid(records[i])))
                 except DataError as err:      # a bad object: named at the end, the others still scored
                     failures.append(failure(err.path or _name(records[i]), err.problem, "evaluate",
                                             object=_name(records[i]), split=split))
@@ -209,6 +214,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
     sym = np.array([symmetric_pose_error(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
     truth, pred = np.stack([r["truth"] for r in rows]), np.stack([r["grid"] for r in rows])
     edt, nai, io = edt_error(truth, pred), naive_error(truth, pred), iou(truth, pred)
+    empty = pred.reshape(len(pred), -1).sum(1) == 0
     per = {}
     for c in classes:
         m = cls == c
@@ -229,7 +235,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
                                "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),
                                "within_30": float((raw < 30).mean()), "within_30_sym": float((sym < 30).mean())},
             "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
-                           "empty_fraction": float((pred.reshape(len(pred), -1).sum(1) == 0).mean())},
+                           "empty_fraction": float(empty.mean())},
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
                            "median_per_query": float(np.median([r["ms"] for r in rows]))},
             "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
@@ -237,7 +243,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
                              if all("object" in r for r in rows) else {}),
                           "class": cls.tolist(), "pred": [r["pred"] for r in rows], "pose_deg": raw.round(4).tolist(),
                           "pose_sym_deg": sym.round(4).tolist(), "edt": edt.round(6).tolist(),
-                          "naive": nai.round(6).tolist(), "iou": io.round(6).tolist(),
+                          "naive": nai.round(6).tolist(), "iou": io.round(6).tolist(), "empty": empty.tolist(),
                           "ms": [round(float(r["ms"]), 4) for r in rows]},
             **_baseline(rows, truth)}
 

@@ -7,6 +7,10 @@ from azimuth ``azim`` (degrees about +z, from +x toward +y) and elevation ``elev
 (depth images, confusion matrices, error violins) and :func:`save`, which writes a figure into the
 run folder (:meth:`hbeo.rundir.RunDir.figure`).
 
+:data:`METHOD_COLORS` is the one place that gives each method setting its colour: every figure of
+notebooks 05-07 (:mod:`hbeo.reproduction.paper_figures`) colours a method with
+:func:`method_color`, the paper's reported figures in the light shade of the same colour.
+
 May import: foundation (matplotlib lazily).
 """
 from __future__ import annotations
@@ -20,6 +24,42 @@ from hbeo import conventions as C
 from hbeo.rotations import view_deg_to_matrix
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_file
+
+
+#: Key of HBEO with the verify step (metrics with a non-null ``verify``) and of the trivial
+#: class-mean completion, in :data:`METHOD_COLORS`; the other keys are (method, pose).
+HBEO_VERIFY, CLASS_MEAN = "hbeo + verify", "class mean"
+#: One colour per method setting (matplotlib's tab10), the same in every figure. HBEO is blue; the
+#: class-mean answer grey. 3DShapeNets appears only as the paper's reported figures.
+METHOD_COLORS = {("hbeo", "3dof"): "#1f77b4", HBEO_VERIFY: "#9467bd", ("beo", "known"): "#2ca02c",
+                 ("beo", "1dof"): "#ff7f0e", ("beo", "3dof"): "#d62728", ("icp", "3dof"): "#8c564b",
+                 ("icp", "1dof"): "#17becf", ("voxcnn", "known"): "#e377c2", ("3dshapenets", "known"): "#bcbd22",
+                 CLASS_MEAN: "#7f7f7f"}
+#: Colour of a setting missing from :data:`METHOD_COLORS` (near black, unlike all of them).
+OTHER_COLOR = "#333333"
+
+
+def method_key(metrics: dict):
+    """Key of a metrics dict (:mod:`hbeo.reproduction.evaluate`) in :data:`METHOD_COLORS`:
+    :data:`HBEO_VERIFY` when it ran the verify step (``protocol.VERIFIED``), else (method, pose)."""
+    if metrics.get("verify") or str(metrics["method"]).endswith("-verify"):
+        return HBEO_VERIFY
+    return (metrics["method"], metrics["pose"])
+
+
+def method_color(key, shade: str = "dark") -> str:
+    """Hex colour of a method: ``key`` is a :data:`METHOD_COLORS` key or a metrics dict; ``shade``
+    ``dark`` (the colour itself: this run) or ``light`` (mixed halfway with white: the paper's
+    reported figures beside it)."""
+    if isinstance(key, dict):
+        key = method_key(key)
+    color = METHOD_COLORS.get(key, OTHER_COLOR)
+    if shade == "dark":
+        return color
+    if shade != "light":
+        raise ValueError(f"shade must be 'dark' or 'light', got {shade!r}")
+    rgb = np.array([int(color[i:i + 2], 16) for i in (1, 3, 5)], float)
+    return "#" + "".join(f"{int(round(v)):02x}" for v in rgb + 0.5 * (255 - rgb))
 
 
 def save(fig, run, name: str, dpi: int = 90, **savefig_kw) -> Path:
@@ -160,22 +200,41 @@ def confusion(ax, matrix, classes, title: str | None = None):
         ax.set_title(title, fontsize=9)
 
 
-def error_violins(ax, groups: dict, ylabel: str, title: str | None = None):
-    """Violin per group {label: values} with the mean marked by a dot and the median by a bar
-    (the paper's pose-error figure marks the mean with a circle)."""
+def error_violins(ax, groups: dict, ylabel: str, title: str | None = None, colors: dict | None = None) -> list:
+    """Violin per group {label: values} in its colour (``colors`` {label: colour}), a narrow box
+    inside (median line, interquartile range, whiskers to 1.5 IQR) and the mean as a black dot (the
+    paper's pose-error figure marks the mean with a circle). Draws no legend: returns the handles
+    for a figure legend outside the axes."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
     labels = list(groups)
     data = [np.asarray(groups[k], dtype=float) for k in labels]
+    colors = colors or {}
     pos = np.arange(1, len(data) + 1)
-    ok = [d for d in data if len(d) > 1]
-    if ok:
-        ax.violinplot([d if len(d) > 1 else np.repeat(d, 2) for d in data], pos, showmedians=True,
-                      showextrema=False)
-    ax.scatter(pos, [d.mean() if len(d) else np.nan for d in data], color="k", zorder=3, label="mean")
+    many = [(p, d) for p, d in zip(pos, data) if len(d) > 1]
+    if many:
+        parts = ax.violinplot([d for _, d in many], [p for p, _ in many], showextrema=False, widths=0.8)
+        for body, k in zip(parts["bodies"], [labels[p - 1] for p, _ in many]):
+            body.set_facecolor(colors.get(k, OTHER_COLOR))
+            body.set_edgecolor(colors.get(k, OTHER_COLOR))
+            body.set_alpha(0.45)
+    full = [(p, d) for p, d in zip(pos, data) if len(d)]
+    if full:
+        ax.boxplot([d for _, d in full], positions=[p for p, _ in full], widths=0.14, showfliers=False,
+                   patch_artist=True, boxprops=dict(facecolor="white", edgecolor="k", linewidth=0.9),
+                   medianprops=dict(color="k", linewidth=1.6), whiskerprops=dict(color="k", linewidth=0.9),
+                   capprops=dict(color="k", linewidth=0.9))
+    ax.scatter(pos, [d.mean() if len(d) else np.nan for d in data], s=36, color="k", edgecolor="white",
+               zorder=4)
     ax.set_xticks(pos, [f"{k}\n(n={len(d)})" for k, d in zip(labels, data)], fontsize=7)
+    ax.set_xlim(0.4, len(data) + 0.6)
     ax.set_ylabel(ylabel)
-    ax.legend(fontsize=7, loc="upper right")
     if title:
         ax.set_title(title, fontsize=9)
+    return [Patch(facecolor="0.6", alpha=0.45, label="distribution of the queries (violin)"),
+            Patch(facecolor="white", edgecolor="k", label="box: interquartile range,\nline: median, whiskers 1.5 IQR"),
+            Line2D([], [], ls="", marker="o", color="k", markeredgecolor="white", markersize=7,
+                   label="mean (the paper's circles)")]
 
 
 assert C.RESOLUTION == 30  # the renderer's defaults assume the standard grid size

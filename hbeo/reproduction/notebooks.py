@@ -28,17 +28,27 @@ def notebooks(only=None) -> list[Path]:
     return nbs
 
 
-def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=None, only=None) -> list[Path]:
+def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=None, only=None,
+                  fresh: bool = False) -> list[Path]:
     """Execute notebooks in order with parameters ``profile``, ``dataset``, ``out_dir``.
 
     Each executed copy is written into the run folder under the notebook's name; a progress line
     per notebook says what runs and how long it took; the run's ``manifest.json`` is updated after
     each. The first failing notebook stops the run (papermill raises, and the failing copy shows
-    where). Returns the executed copies.
+    where). ``fresh``: first remove what earlier runs trained or evaluated there (:func:`clear_products`),
+    so every model is trained inside this run. After the last notebook, the run's
+    ``REPRODUCTION.md`` is written (:func:`hbeo.reproduction.report.write_reproduction`; for the
+    reference run, :data:`~hbeo.reproduction.report.REFERENCE_RUN`, also ``paper/REPRODUCTION.md``).
+    Returns the executed copies.
     """
     import papermill as pm
+    from hbeo.reproduction.report import write_reports
     preflight(profile, dataset)
     run = RunDir.for_run(profile, dataset, out_dir)
+    if fresh:
+        for p in clear_products(run):
+            print(f"[hbeo] fresh run: removed {p}", flush=True)
+        write_manifest(run, profile, dataset, fresh=True)
     nbs = notebooks(only)
     done = []
     t_all = time.perf_counter()
@@ -54,7 +64,31 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         print(f"[hbeo {k}/{len(nbs)}] {nb.name} done in {sec / 60:.1f} min "
               f"(total {(time.perf_counter() - t_all) / 60:.1f} min)", flush=True)
         done.append(target)
+    if nbs and nbs[-1] == notebooks()[-1]:
+        for path in write_reports(run, profile, dataset):
+            print(f"[hbeo] wrote {path}", flush=True)
     return done
+
+
+def clear_products(run) -> list[Path]:
+    """Remove what a run trained or evaluated (model and baseline files, training folders with their
+    checkpoints, the protocol's metrics files); grids, subspace and rendered sets stay (they are checked
+    against their settings and rebuilt when stale). Returns the removed paths."""
+    import shutil
+    from hbeo.reproduction.protocol import EVALUATIONS
+    run = RunDir.of(run)
+    gone = [*run.path.glob("*.hbeo"), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
+            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.path.glob("train_*")]
+    out = []
+    for p in gone:
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+        else:
+            continue
+        out.append(p)
+    return out
 
 
 def preflight(profile: str, dataset: str) -> None:

@@ -1,16 +1,22 @@
-"""The evaluation protocol of the reproduction and its cache: which (method, pose) settings each
-notebook shows, how many test objects each sees, and the one cached :func:`evaluation` the
-notebooks call.
+"""The paired evaluation protocol of the reproduction and its cache: which (method, pose) settings
+each notebook shows, which test objects and views each scores, and the one cached :func:`evaluation`
+the notebooks call.
 
-Every setting is scored by :func:`hbeo.reproduction.evaluate.evaluate_model` on the same rendered
-test views: one view per test object (``views=1``), seed :data:`SEED`, the run's HBEO model file
-supplying the camera and distances. A result is written to
-:meth:`hbeo.rundir.RunDir.evaluation` (``eval_<method>_<pose>.json``) together with the request
-that produced it; a later call with the same request (same model file, settings and objects)
-reads it instead of evaluating again.
+Pairs
+    Every setting is scored by :func:`hbeo.reproduction.evaluate.evaluate_model` on query views drawn
+    from seed :data:`SEED` and each object's stable id (:func:`hbeo.render.views.query_rng`): view j
+    of object o is the same image for every method. The plan (:func:`eval_plan`): every test object
+    of the profile's split with the profile's ``eval_views`` views; the slow searches (BEO 3-DOF, ICP,
+    and BEO 1-DOF where the profile says so) the first objects of each class with view 0 only, a
+    subset of the same pairs. Per-query results (``per_query``: object, view, class, errors) are kept
+    in each metrics file and gathered in one table per run (:func:`per_query_table`).
 
-Test objects per class: the profile's test split, fewer for BEO's slow pose search (the profile's
-``beo_1dof_test_per_class`` and ``beo_3dof_test_per_class``, see :mod:`hbeo.config`).
+Cache
+    A result is written to :meth:`hbeo.rundir.RunDir.evaluation` (``eval_<method>_<pose>.json``)
+    with the request that produced it (:func:`request`): the setting, objects and views, the code
+    version (:func:`hbeo.storage.tree_digest` of the package), the dataset's fingerprint (the grid
+    file's sha256), and the sha256 of the HBEO model file and of the baseline's file. A later call
+    with the same request reads it; anything else evaluates again.
 
 May import: foundation, data, render, model, baselines and :mod:`hbeo.reproduction.evaluate`.
 """
@@ -18,67 +24,115 @@ from __future__ import annotations
 
 import json
 import os
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
 from hbeo import config
 from hbeo.rundir import RunDir
-from hbeo.storage import append_csv, atomic_text, sha256_file
+from hbeo.storage import append_csv, atomic_text, sha256_file, tree_digest
 
 SEED = 0
+#: HBEO with the extensions chosen on validation (issue 16): test-time roll averaging (bins models) and
+#: the verify step (:class:`hbeo.model.verify.VerifyConfig`'s defaults). Not the paper's method.
+VERIFIED = "hbeo-verify"
+VERIFIED_ROLLS = 4
 #: Every evaluation of a run, in the order the notebooks show them (Table II): (method, pose);
 #: which of them get the true class is :data:`hbeo.baselines.methods.GIVEN_CLASS`.
-EVALUATIONS = (("hbeo", "3dof"), ("beo", "known"), ("beo", "1dof"), ("voxcnn", "known"), ("beo", "3dof"),
-               ("icp", "3dof"))
+EVALUATIONS = (("hbeo", "3dof"), (VERIFIED, "3dof"), ("beo", "known"), ("beo", "1dof"), ("voxcnn", "known"),
+               ("beo", "3dof"), ("icp", "3dof"))
 #: Table I (notebook 05): the settings that classify.
-TABLE1 = (("hbeo", "3dof"), ("beo", "known"), ("beo", "1dof"), ("voxcnn", "known"))
+TABLE1 = (("hbeo", "3dof"), (VERIFIED, "3dof"), ("beo", "known"), ("beo", "1dof"), ("voxcnn", "known"))
 #: The paper's pose figure (notebook 06).
-POSE = (("hbeo", "3dof"), ("beo", "3dof"), ("icp", "3dof"))
+POSE = (("hbeo", "3dof"), (VERIFIED, "3dof"), ("beo", "3dof"), ("icp", "3dof"))
 #: The paper's completion figure (notebook 06).
-COMPLETION = (("hbeo", "3dof"), ("beo", "known"), ("beo", "1dof"), ("beo", "3dof"), ("voxcnn", "known"))
+COMPLETION = (("hbeo", "3dof"), (VERIFIED, "3dof"), ("beo", "known"), ("beo", "1dof"), ("beo", "3dof"),
+              ("voxcnn", "known"))
 
 
 def eval_per_class(profile, method: str, pose: str) -> int | None:
     """Test objects per class that ``method``/``pose`` is evaluated on under ``profile`` (None: all
     of the profile's test split)."""
+    return eval_plan(profile, method, pose)[0]
+
+
+def eval_plan(profile, method: str, pose: str) -> tuple[int | None, int]:
+    """(test objects per class or None for all, views per object) of ``method``/``pose``: the
+    profile's test split with ``eval_views`` views, or for the slow searches (``beo_1dof_test_per_class``,
+    ``beo_3dof_test_per_class``, ``icp_test_per_class``) the first objects of each class, view 0 only."""
     prof = config.get_profile(profile)
-    fewer = {("beo", "1dof"): prof.beo_1dof_test_per_class,
-             ("beo", "3dof"): prof.beo_3dof_test_per_class}.get((method, pose))
+    fewer = {("beo", "1dof"): prof.beo_1dof_test_per_class, ("beo", "3dof"): prof.beo_3dof_test_per_class,
+             ("icp", "3dof"): prof.icp_test_per_class, ("icp", "1dof"): prof.icp_test_per_class}.get((method, pose))
     test_n = prof.n_test_per_class
-    return fewer if test_n is None or (fewer is not None and fewer < test_n) else test_n
+    if fewer is None or (test_n is not None and fewer >= test_n):
+        return test_n, prof.eval_views
+    return fewer, 1
+
+
+@lru_cache(maxsize=1)
+def code_version() -> str:
+    """sha256 (16 hex digits) of the ``hbeo`` source that computes an evaluation: the whole package but
+    the command line and the reproduction modules that only present results (tables, figures,
+    intervals, reports). A change to any other file invalidates every cached evaluation."""
+    root = Path(__file__).resolve().parent.parent
+    shown = {p.relative_to(root).as_posix() for p in (root / "reproduction").glob("*.py")
+             if p.name not in ("evaluate.py", "protocol.py", "__init__.py")}
+    return tree_digest(root, skip={"cli.py", "__main__.py", *shown})[:16]
+
+
+def _sha(path: Path) -> str | None:
+    return sha256_file(path)[:16] if path.exists() else None
+
+
+def request(run, dataset, profile, method: str, pose: str) -> dict:
+    """What decides an evaluation's result (its cache key): the setting, the objects and views, the
+    seed, the code version, the dataset's fingerprint and the model and baseline files' hashes.
+    ``dataset``: a :class:`hbeo.data.datasets.Dataset`."""
+    run = RunDir.of(run)
+    per_class, views = eval_plan(profile, method, pose)
+    base = method.split("-")[0]
+    return {"method": method, "pose": pose, "dataset": dataset.name, "dataset_fingerprint": dataset.fingerprint(),
+            "per_class": per_class, "views": views, "seed": SEED, "code": code_version(),
+            "model_sha256": _sha(run.model), "baseline_sha256": None if base == "hbeo" else _sha(run.baseline(base))}
 
 
 def evaluation(run, dataset: str, profile, method: str = "hbeo", pose: str | None = None,
-               per_class: int | None | str = "plan", views: int = 1, seed: int = SEED, progress: bool = True) -> dict:
-    """Metrics of ``method``/``pose`` on the run's test views (:func:`hbeo.reproduction.evaluate.evaluate_model`),
-    read from the run's ``eval_<method>_<pose>.json`` when that file answers the same request (same
-    model file, settings and objects), else computed and written there (atomically).
-    ``per_class="plan"``: :func:`eval_per_class`. ``run``: a RunDir or a path."""
+               progress: bool = True) -> dict:
+    """Metrics of ``method``/``pose`` on the run's paired test views (:func:`eval_plan`,
+    :func:`hbeo.reproduction.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
+    when that file answers the same :func:`request`, else computed and written there (atomically).
+    ``method`` :data:`VERIFIED` is HBEO with roll averaging and the verify step. The run's model is
+    trained first if missing (:func:`hbeo.model.pipeline.ensure_model`). ``run``: a RunDir or a path."""
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.data import datasets
-    from hbeo.model.inference import HBEO
+    from hbeo.model.pipeline import ensure_model
     from hbeo.reproduction.evaluate import evaluate_model
     run = RunDir.of(run)
     prof = config.get_profile(profile)
-    pose = check_method(method, pose)
-    if per_class == "plan":
-        per_class = eval_per_class(prof, method, pose)
-    request = {"method": method, "pose": pose, "dataset": dataset, "per_class": per_class, "views": views,
-               "seed": seed, "model_sha256": sha256_file(run.model)[:16]}
+    verified = method == VERIFIED
+    pose = "3dof" if verified else check_method(method, pose)
+    ds = datasets.get_dataset(dataset, profile=prof)
     path = run.evaluation(method, pose)
     if path.exists():
         try:
             old = json.loads(path.read_text())
-            if old.get("request") == request:
+            if old.get("request") == request(run, ds, prof, method, pose):
                 return old
         except (OSError, ValueError):
             pass
-    model = HBEO.load(run.model)
-    ds = datasets.get_dataset(dataset, profile=prof)
-    meth = None if method == "hbeo" else load_method(method, run, prof, progress=progress)
-    m = evaluate_model(model, ds, split="test", views=views, seed=seed, per_class=per_class, progress=progress,
-                       method=meth, pose=pose)
-    m["request"] = request
+    model = ensure_model(dataset, prof, run, progress=progress)
+    meth = None if method in ("hbeo", VERIFIED) else load_method(method, run, prof, progress=progress)
+    verify, rolls = None, 1
+    if verified:
+        from hbeo.model.verify import VerifyConfig
+        verify, rolls = VerifyConfig(), VERIFIED_ROLLS if model.net.cfg.rotation == "bins" else 1
+    per_class, views = eval_plan(prof, method, pose)
+    m = evaluate_model(model, ds, split="test", views=views, seed=SEED, per_class=per_class, progress=progress,
+                       method=meth, pose=pose, rolls=rolls, verify=verify)
+    if verified:
+        m["method"] = VERIFIED
+    m["request"] = request(run, ds, prof, method, pose)
     atomic_text(path, json.dumps(m, indent=1))
     return m
 
@@ -88,15 +142,25 @@ def evaluations(run, dataset: str, profile, settings=EVALUATIONS, progress: bool
     return [evaluation(run, dataset, profile, m, p, progress=progress) for m, p in settings]
 
 
-def evaluate_unsaved(model, dataset: str, profile, progress: bool = True) -> dict:
-    """HBEO metrics of another ``model`` (a variant trained in the same run) on the protocol's test
-    views, not cached: the same objects, view and seed as :func:`evaluation` ``("hbeo", "3dof")``."""
+def per_query_table(evals: list[dict]):
+    """One table of every query of ``evals`` (a pandas DataFrame): ``method``, ``pose``, then the
+    ``per_query`` columns (object, view, class, pred, errors, ms); rows of different methods with
+    the same (object, view) saw the same image."""
+    import pandas as pd
+    frames = [pd.DataFrame(m["per_query"]).assign(method=m["method"], pose=m["pose"]) for m in evals]
+    df = pd.concat(frames, ignore_index=True)
+    return df[["method", "pose", *[c for c in df.columns if c not in ("method", "pose")]]]
+
+
+def evaluate_validation(model, dataset: str, profile, progress: bool = True) -> dict:
+    """HBEO metrics of ``model`` (a variant trained in the run) on the validation objects (training
+    objects its training held out, :func:`hbeo.data.datasets.validation_records`) with the profile's
+    ``eval_views`` query views, not cached: where options are compared, never on the test split."""
     from hbeo.data import datasets
     from hbeo.reproduction.evaluate import evaluate_model
     prof = config.get_profile(profile)
     ds = datasets.get_dataset(dataset, profile=prof)
-    return evaluate_model(model, ds, split="test", views=1, seed=SEED, progress=progress,
-                          per_class=eval_per_class(prof, "hbeo", "3dof"))
+    return evaluate_model(model, ds, split="val", views=prof.eval_views, seed=SEED, progress=progress)
 
 
 def sample_completions(run, dataset: str, profile, n: int = 6, seed: int = SEED) -> list[dict]:
@@ -123,7 +187,7 @@ def sample_completions(run, dataset: str, profile, n: int = 6, seed: int = SEED)
     viewer, views = ObjectViews(rs), []
     try:
         for i, r in picks:
-            views.append((r, viewer.views(r, i, -1, "test")))
+            views.append((r, viewer.query_views(r, "test", 1)))
     finally:
         viewer.close()
     out = []

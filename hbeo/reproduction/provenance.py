@@ -1,9 +1,12 @@
 """Provenance of a run: the run folder's ``manifest.json`` (:attr:`hbeo.rundir.RunDir.manifest`).
 
-It records the profile and its settings, the dataset, the git commit (and whether the working tree
-had uncommitted changes), package versions, this machine's hardware (:func:`hardware`), the seeds,
-the wall time of every notebook run so far and the command line. Written atomically; each update
-merges the wall times into those already recorded.
+It records the profile and its settings, the dataset, the git commit and tag, whether the working
+tree had uncommitted changes outside ``results/`` (the run writes there), the code version of the
+evaluations (:func:`hbeo.reproduction.protocol.code_version`), package versions, this machine's
+hardware (:func:`hardware`), the seeds, for every notebook its wall time and the commit it ran at,
+how each model of the run was trained (from scratch, or resumed from a checkpoint of an interrupted
+run: ``train_*/provenance.json``) and the command line. Written atomically; each update merges the
+notebooks into those already recorded.
 
 May import: foundation and :mod:`hbeo.reproduction.protocol` (torch only to describe the hardware).
 """
@@ -75,19 +78,42 @@ def hardware() -> dict:
             "platform": platform.platform()}
 
 
-def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None) -> dict:
+def git_state() -> dict:
+    """``git_commit``, ``git_tag`` (a tag exactly at it, or None) and ``git_dirty`` (uncommitted changes
+    to tracked files outside ``results/``; None without git)."""
+    dirty = _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)results")
+    return {"git_commit": _git("rev-parse", "HEAD"), "git_tag": _git("describe", "--tags", "--exact-match") or None,
+            "git_dirty": bool(dirty) if dirty is not None else None}
+
+
+def training_records(run) -> dict:
+    """{model file: how it was trained} from the run's ``train_*/provenance.json``
+    (:func:`hbeo.model.pipeline.train_run_model`)."""
+    out = {}
+    for p in sorted(RunDir.of(run).path.glob("train_*/provenance.json")):
+        rec = json.loads(p.read_text())
+        out[rec.get("model", p.parent.name)] = rec
+    return out
+
+
+def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, fresh: bool = False) -> dict:
     """Create or update the run's ``manifest.json`` (atomically); ``wall_s`` {notebook: seconds} is
-    merged into the wall times already there. ``run``: a RunDir or a path. Returns the manifest."""
-    path = RunDir.of(run).manifest
-    old = json.loads(path.read_text()) if path.exists() else {}
-    commit = _git("rev-parse", "HEAD")
-    dirty = _git("status", "--porcelain", "--untracked-files=no")
+    merged into the notebooks already there, each with the commit it ran at (``fresh``: forget the
+    notebooks of earlier runs). ``run``: a RunDir or a path. Returns the manifest."""
+    from hbeo.reproduction.protocol import code_version
+    run = RunDir.of(run)
+    old = {} if fresh or not run.manifest.exists() else json.loads(run.manifest.read_text())
+    git = git_state()
+    nbs = dict(old.get("notebooks", {}))
+    for name, sec in (wall_s or {}).items():
+        nbs[name] = {"wall_s": sec, "commit": git["git_commit"], "dirty": git["git_dirty"],
+                     "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     m = {"profile": profile, "dataset": dataset, "profile_settings": config.get_profile(profile).to_dict(),
-         "git_commit": commit, "git_dirty": bool(dirty) if dirty is not None else None,
-         "versions": versions(), "hardware": hardware(), "seeds": {"training": SEED, "evaluation": SEED,
-                                                                    "rendering": SEED},
-         "wall_time_s": {**old.get("wall_time_s", {}), **(wall_s or {})},
+         **git, "code_version": code_version(), "versions": versions(), "hardware": hardware(),
+         "seeds": {"training": SEED, "evaluation": SEED, "rendering": SEED},
+         "notebooks": nbs, "training": training_records(run),
+         "one_commit": len({n["commit"] for n in nbs.values()}) <= 1 and not any(n["dirty"] for n in nbs.values()),
          "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": " ".join(sys.argv)}
-    m["wall_time_total_s"] = round(sum(m["wall_time_s"].values()), 1)
-    atomic_text(path, json.dumps(m, indent=1))
+    m["wall_time_total_s"] = round(sum(n["wall_s"] for n in nbs.values()), 1)
+    atomic_text(run.manifest, json.dumps(m, indent=1))
     return m

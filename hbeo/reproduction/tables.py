@@ -1,5 +1,5 @@
-"""The paper's tables and claims, built from evaluation metrics (:mod:`hbeo.reproduction.evaluate` JSON dicts),
-and writing any notebook table into the run folder.
+"""The paper's tables, built from evaluation metrics (:mod:`hbeo.reproduction.evaluate` JSON dicts; the claims and
+intervals are :mod:`hbeo.reproduction.paired`'s), and writing any notebook table into the run folder.
 
 Every paper table carries a ``source`` column: ``reported`` (the paper, :func:`paper_table`, from
 ``paper/reported/*.csv``) or ``reproduced`` (this run). :func:`to_markdown` formats any table as
@@ -24,7 +24,7 @@ from hbeo.storage import atomic_text
 REPORTED = config.REPO_ROOT / "paper" / "reported"
 
 #: Display names of (method, pose) settings, as the paper labels them.
-LABELS = {("hbeo", "3dof"): "HBEO (3-DOF)", ("beo", "known"): "BEO (known pose)", ("beo", "1dof"): "BEO (1-DOF)",
+LABELS = {("hbeo", "3dof"): "HBEO (3-DOF)", ("hbeo-verify", "3dof"): "HBEO + rolls + verify (3-DOF, ours)", ("beo", "known"): "BEO (known pose)", ("beo", "1dof"): "BEO (1-DOF)",
           ("beo", "3dof"): "BEO (3-DOF, true class)", ("icp", "3dof"): "ICP (3-DOF, true class)",
           ("icp", "1dof"): "ICP (1-DOF, true class)", ("voxcnn", "known"): "3-D CNN on partial grid (known pose)",
           ("class_mean", "-"): "class mean shape (HBEO's class)"}
@@ -33,7 +33,8 @@ _PAPER_SETTING = {"known_pose": "known", "unknown_pose_1dof": "1dof", "unknown_p
 
 def label(metrics: dict) -> str:
     key = (metrics["method"], metrics["pose"])
-    return LABELS.get(key, f"{key[0]} ({key[1]})") + (" + verify" if metrics.get("verify") else "")
+    name = LABELS.get(key, f"{key[0]} ({key[1]})")
+    return name + (" + verify" if metrics.get("verify") and "verify" not in name else "")
 
 
 def paper_table(name: str) -> pd.DataFrame:
@@ -76,9 +77,9 @@ def to_markdown(df: pd.DataFrame, floatfmt: str = "{:.1f}", index: bool = False)
 def table1(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFrame:
     """Table I: per-class and total accuracy (%) of each evaluation, the paper's rows beside.
 
-    ``total`` is the accuracy over all queries (as the paper's totals, which weight classes by
-    their test counts). Settings that were given the true class are left out (accuracy 1 by
-    construction)."""
+    ``class mean`` is the mean of the per-class accuracies (the paper's HBEO total is exactly that:
+    81.8 = the mean of its ten class figures), ``total`` the accuracy over all queries. Settings that
+    were given the true class are left out (accuracy 1 by construction)."""
     rows = []
     for m in evals:
         if m.get("given_class"):
@@ -87,6 +88,7 @@ def table1(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
         for c in CLASSES:
             pc = m["per_class"].get(c)
             r[c] = 100 * pc["accuracy"] if pc else np.nan
+        r["class mean"] = float(np.mean([100 * v["accuracy"] for v in m["per_class"].values()]))
         r["total"] = 100 * m["accuracy"]
         r["queries"] = m["n_queries"]
         rows.append(r)
@@ -94,6 +96,7 @@ def table1(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
         for _, p in reported.iterrows():
             r = {"source": "reported", "setting": _PAPER_SETTING.get(p["setting"], p["setting"]), "method": p["method"]}
             r.update({c: float(p[c]) for c in CLASSES})
+            r["class mean"] = float(np.mean([r[c] for c in CLASSES]))
             r["total"], r["queries"] = float(p["total"]), np.nan
             rows.append(r)
     order = {"known": 0, "1dof": 1, "3dof": 2}
@@ -104,17 +107,21 @@ def table1(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
 
 
 def pose_summary(evals: list[dict]) -> pd.DataFrame:
-    """Mean / median raw and symmetry-aware pose error (degrees) per evaluation that estimates pose."""
+    """Pose error (degrees) per evaluation that estimates pose, from its per-query errors: the raw
+    geodesic error and the error modulo near-symmetric turns about the up axis, each as median and
+    interquartile range (``p25``, ``p75``) for every method; the mean of the raw error beside (the
+    statistic the paper's pose figure marks), and the share of queries within 30°."""
     rows = []
     for m in evals:
         if m["pose"] == "known":
             continue
-        q = m["per_query"]
-        rows.append({"method": label(m), "queries": m["n_queries"], "mean (°)": float(np.mean(q["pose_deg"])),
-                     "median (°)": float(np.median(q["pose_deg"])),
-                     "mean mod. symmetry (°)": float(np.mean(q["pose_sym_deg"])),
-                     "median mod. symmetry (°)": float(np.median(q["pose_sym_deg"])),
-                     "share < 30° (%)": 100 * float(np.mean(np.asarray(q["pose_deg"]) < 30))})
+        raw = np.asarray(m["per_query"]["pose_deg"], float)
+        sym = np.asarray(m["per_query"]["pose_sym_deg"], float)
+        (r25, r50, r75), (s25, s50, s75) = np.percentile(raw, [25, 50, 75]), np.percentile(sym, [25, 50, 75])
+        rows.append({"method": label(m), "queries": m["n_queries"], "median (°)": r50, "p25 (°)": r25,
+                     "p75 (°)": r75, "mean (°, the paper's statistic)": float(raw.mean()),
+                     "median mod. symmetry (°)": s50, "p25 mod. symmetry (°)": s25, "p75 mod. symmetry (°)": s75,
+                     "share < 30° (%)": 100 * float(np.mean(raw < 30))})
     return pd.DataFrame(rows)
 
 
@@ -128,74 +135,74 @@ def pose_per_class(evals: list[dict]) -> pd.DataFrame:
 
 
 def completion_summary(evals: list[dict]) -> pd.DataFrame:
-    """Completion errors per evaluation: EDT e' (the paper's metric), naive e, IoU, empty share;
-    plus the trivial class-mean answer (from the HBEO evaluation) for scale."""
+    """Completion errors per evaluation from its per-query scores (:mod:`hbeo.subspace.metrics`):
+    EDT e' (the paper's metric; lower is better), naive e (1 is perfect; higher is better) and IoU
+    (higher is better), each as median and interquartile range (``p25``, ``p75``) over all queries
+    for every method. ``empty completions`` counts the queries whose completed grid is empty (per-query
+    ``empty`` where the metrics carry it, else IoU 0 with naive e exactly 0, which against a non-empty
+    target only an empty grid gives; checked against ``completion.empty_fraction``). An empty grid's
+    e' is an order of magnitude above a typical one, so e' is also given over the non-empty
+    completions (median and mean), beside the mean over all queries (``completion.edt``, the claims'
+    statistic). Plus the trivial class-mean answer (from the HBEO evaluation) for scale: from per-query
+    ``baseline_edt``, ``baseline_naive``, ``baseline_iou`` where the metrics carry them, else its mean e'."""
+    def row(name, n, q, mean_edt, fraction=None):
+        r = {"method": name, "queries": n, "empty completions": np.nan}
+        if q is None:
+            return {**r, "EDT e' mean": mean_edt}
+        edt, nai, io = (np.asarray(q[k], float) for k in ("edt", "naive", "iou"))
+        empty = np.asarray(q["empty"], bool) if "empty" in q else (io == 0) & (nai == 0)
+        if fraction is not None and int(empty.sum()) != int(round(fraction * len(empty))):
+            raise ValueError(f"{name}: {int(empty.sum())} empty completions found in per_query, but "
+                             f"completion.empty_fraction says {fraction * len(empty):.0f}")
+        r["empty completions"] = int(empty.sum())
+        for tag, v in (("EDT e'", edt), ("naive e", nai), ("IoU", io)):
+            r[f"{tag} p25"], r[f"{tag} median"], r[f"{tag} p75"] = np.percentile(v, [25, 50, 75])
+        full = edt[~empty]
+        r["EDT e' mean"] = float(edt.mean())
+        r["EDT e' median, non-empty"] = float(np.median(full)) if len(full) else np.nan
+        r["EDT e' mean, non-empty"] = float(full.mean()) if len(full) else np.nan
+        return r
+
     rows = []
     for m in evals:
-        c = m["completion"]
-        rows.append({"method": label(m), "queries": m["n_queries"], "EDT e'": c["edt"], "naive e": c["naive"],
-                     "IoU": c["iou"], "empty (%)": 100 * c.get("empty_fraction", np.nan)})
-        if m["method"] == "hbeo" and "completion_baseline" in m:
-            b = m["completion_baseline"]["predicted_class"]
-            rows.append({"method": LABELS[("class_mean", "-")], "queries": m["n_queries"], "EDT e'": b["edt"],
-                         "naive e": b["naive"], "IoU": b["iou"], "empty (%)": np.nan})
-    return pd.DataFrame(rows)
+        rows.append(row(label(m), m["n_queries"], m["per_query"], None, m["completion"].get("empty_fraction")))
+        if m["method"] == "hbeo" and not m.get("verify") and "completion_baseline" in m:
+            q = m["per_query"]
+            bq = {k: q[f"baseline_{k}"] for k in ("edt", "naive", "iou")} if "baseline_edt" in q else None
+            rows.append(row(LABELS[("class_mean", "-")], m["n_queries"], bq,
+                            m["completion_baseline"]["predicted_class"]["edt"]))
+    cols = ["method", "queries", "empty completions", *[f"{t} {s}" for t in ("EDT e'", "naive e", "IoU")
+                                                         for s in ("median", "p25", "p75")],
+            "EDT e' mean", "EDT e' median, non-empty", "EDT e' mean, non-empty"]
+    return pd.DataFrame(rows).reindex(columns=cols)
 
 
 def table2(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFrame:
-    """Table II: mean seconds per query of each evaluation, the paper's figure beside."""
+    """Table II: seconds per query of each evaluation, from its per-query timings (``per_query``
+    ``ms``): median and interquartile range (``p25``, ``p75``) for every method, and the mean beside
+    ``paper: mean (s)`` (the paper reports means). Settings only the paper ran get a row
+    ``<method> (<pose>), reported only``; HBEO with the verify step has no paper figure."""
     rep = {}
     if reported is not None:
         for _, p in reported.iterrows():
             pose = {"known_pose": "known"}.get(p["pose_setting"], p["pose_setting"])
             rep[(str(p["method"]).lower(), pose)] = float(p["mean_runtime_s"])
-    rows = []
+    rows, used = [], set()
     for m in evals:
-        key = (m["method"], m["pose"])
-        rows.append({"method": label(m), "reproduced (s)": m["runtime_ms"]["mean_per_query"] / 1e3,
-                     "paper (s)": rep.pop(key, np.nan), "queries": m["n_queries"]})
+        key = None if m.get("verify") else (m["method"], m["pose"])
+        s = np.asarray(m["per_query"].get("ms", []), float) / 1e3
+        if len(s):
+            (p25, med, p75), mean = np.percentile(s, [25, 50, 75]), float(s.mean())
+        else:               # metrics without per-query timings: no interquartile range to give
+            p25 = p75 = np.nan
+            med, mean = m["runtime_ms"]["median_per_query"] / 1e3, m["runtime_ms"]["mean_per_query"] / 1e3
+        used.add(key)
+        rows.append({"method": label(m), "queries": m["n_queries"], "median (s)": med, "p25 (s)": p25,
+                     "p75 (s)": p75, "mean (s)": mean, "paper: mean (s)": rep.get(key, np.nan)})
     for (meth, pose), v in rep.items():
-        rows.append({"method": f"{meth} ({pose}), reported only", "reproduced (s)": np.nan, "paper (s)": v,
-                     "queries": np.nan})
-    return pd.DataFrame(rows)
-
-
-def claims(evals: list[dict]) -> pd.DataFrame:
-    """The paper's qualitative claims, each with the numbers that decide it on this run."""
-    by = {(m["method"], m["pose"]): m for m in evals}
-    rows = []
-
-    def add(claim, values, holds):
-        rows.append({"claim (paper)": claim, "this run": values, "holds": "yes" if holds else "no"})
-
-    h, b3, i3 = by.get(("hbeo", "3dof")), by.get(("beo", "3dof")), by.get(("icp", "3dof"))
-    if h and b3:
-        hm, bm = h["pose_error_deg"]["mean"], b3["pose_error_deg"]["mean"]
-        add("HBEO's mean 3-DOF pose error is less than half of BEO's", f"HBEO {hm:.1f}°, BEO {bm:.1f}°", hm < bm / 2)
-    if h and i3:
-        hm, im = h["pose_error_deg"]["mean"], i3["pose_error_deg"]["mean"]
-        add("HBEO's pose error is below the ICP baseline's", f"HBEO {hm:.1f}°, ICP {im:.1f}°", hm < im)
-    bk, b1 = by.get(("beo", "known")), by.get(("beo", "1dof"))
-    if h and bk:
-        ha, ba = h["accuracy"], bk["accuracy"]
-        add("HBEO (unknown 3-DOF pose) classifies better than BEO with known pose",
-            f"HBEO {100 * ha:.1f} %, BEO {100 * ba:.1f} %", ha > ba)
-    if h and b1:
-        add("HBEO's misclassification rate is less than half of BEO's (1-DOF)",
-            f"HBEO {100 * (1 - h['accuracy']):.1f} %, BEO {100 * (1 - b1['accuracy']):.1f} %",
-            (1 - h["accuracy"]) < (1 - b1["accuracy"]) / 2)
-    if h and bk:
-        he, be = h["completion"]["edt"], bk["completion"]["edt"]
-        add("HBEO completion (depth, unknown pose) is competitive with BEO on known-pose input "
-            "(EDT e' within 25 %)", f"HBEO {he:.1f}, BEO known {be:.1f}", he <= 1.25 * be)
-    if h and b1:
-        he, be = h["completion"]["edt"], b1["completion"]["edt"]
-        add("HBEO completion is clearly better than BEO (1-DOF)", f"HBEO {he:.1f}, BEO 1-DOF {be:.1f}", he < be)
-    v = by.get(("voxcnn", "known"))
-    if h and v:
-        he, ve = h["completion"]["edt"], v["completion"]["edt"]
-        add("HBEO completion is better than an end-to-end network with known pose (3DShapeNets' role)",
-            f"HBEO {he:.1f}, 3-D CNN {ve:.1f}", he < ve)
+        if (meth, pose) not in used:
+            rows.append({"method": f"{meth} ({pose}), reported only", "queries": np.nan, "median (s)": np.nan,
+                         "p25 (s)": np.nan, "p75 (s)": np.nan, "mean (s)": np.nan, "paper: mean (s)": v})
     return pd.DataFrame(rows)
 
 
@@ -216,6 +223,11 @@ def per_class(metrics: dict) -> pd.DataFrame:
 
 
 def table2_note(hw: dict) -> str:
-    """The hardware line under Table II (``hw`` from :func:`hbeo.reproduction.provenance.hardware`)."""
-    return (f"\n\nReproduced on: {hw['cpu']}, {hw['cores']} cores, {hw['gpu'] or 'no GPU'}. "
+    """The lines under Table II: the statistic, and the hardware of this run (``hw`` from
+    :func:`hbeo.reproduction.provenance.hardware`: cpu, cores, gpu, torch threads) and of the paper."""
+    threads = hw.get("torch_threads")
+    return ("\n\nSeconds per query: median and interquartile range (p25-p75) over each evaluation's queries "
+            "(one view per call, after one untimed warm-up call); the mean beside, as the paper reports means.\n"
+            f"Reproduced on: {hw['cpu']}, {hw['cores']} cores, GPU: {hw.get('gpu') or 'none'}, "
+            f"torch threads: {threads if threads is not None else 'unknown'}. "
             "Paper: 4-core Intel CPU + GTX 1070 (Matlab BEO, TensorFlow HBEONet).\n")

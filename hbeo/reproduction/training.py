@@ -12,7 +12,6 @@ import numpy as np
 import pandas as pd
 
 from hbeo.reproduction import figures
-from hbeo.reproduction.protocol import evaluate_unsaved
 from hbeo.rundir import RunDir
 
 
@@ -73,19 +72,43 @@ def predictions_figure(model, ds, view_sampler, n: int = 5, seed: int = 1):
     return fig
 
 
-def option_variants(run, dataset: str, profile, epochs: int | None, paper_metrics: dict) -> pd.DataFrame:
-    """Train the options beyond the paper on the run's data (same epochs), evaluate each on the
-    protocol's test views, and table them beside ``paper_metrics`` (the paper's settings):
-    accuracy, median pose error (raw and modulo symmetry), IoU and the share of empty completions."""
+#: The paper's training recipe (:meth:`hbeo.config.Profile.recipe`'s keys).
+PAPER_RECIPE = {"rotation": "axis_angle", "augment_roll": False, "shape_loss": "coeffs"}
+#: The variants notebook 04 can train (a profile's ``options`` picks them): the paper's recipe, the 6-D
+#: rotation output, 6-D with the distance-insensitive input, and the profile's own recipe.
+OPTIONS = ("paper", "6d", "6d_dist", "recipe")
+
+
+def option_variants(run, dataset: str, profile, epochs: int | None = None, progress: bool = True) -> pd.DataFrame:
+    """Train the paper's recipe, the options beyond it and the run's own recipe on the run's data, all
+    for the same epochs (``epochs``, else the profile's ``option_epochs``, else its ``epochs``), and
+    score each on the validation objects (:func:`hbeo.reproduction.protocol.evaluate_validation`; the
+    test split is not used to compare options): accuracy, median pose error (raw and modulo
+    symmetry), share within 30 degrees, IoU and the share of empty completions."""
+    from hbeo import config
     from hbeo.model.fit import ViewOptions, fit_model
+    from hbeo.reproduction.protocol import evaluate_validation
     run = RunDir.of(run)
-    variants = {"paper (axis-angle)": paper_metrics}
-    for name, stem, kw in [("6-D rotation", "model_6d", dict(rotation="6d")),
-                           ("6-D + distance-insensitive", "model_6d_dist",
-                            dict(rotation="6d", view=ViewOptions(True, 1.7)))]:
-        model, _ = fit_model(run, profile, epochs=epochs, out_name=run.model_file(stem).name, **kw)
-        variants[name] = evaluate_unsaved(model, dataset, profile)
-    return pd.DataFrame({n: {"accuracy": v["accuracy"], "pose median (°)": v["pose_error_deg"]["median"],
-                             "pose median sym (°)": v["pose_error_deg"]["median_sym"],
-                             "IoU": v["completion"]["iou"], "empty completions": v["completion"]["empty_fraction"]}
-                         for n, v in variants.items()}).T
+    prof = config.get_profile(profile)
+    n = epochs or prof.option_epochs or prof.epochs
+    specs = {"paper": ("paper: axis-angle, coefficient loss", PAPER_RECIPE),
+             "6d": ("6-D rotation", {**PAPER_RECIPE, "rotation": "6d"}),
+             "6d_dist": ("6-D + distance-insensitive", {**PAPER_RECIPE, "rotation": "6d", "view": ViewOptions(True, 1.7)}),
+             "recipe": (f"this profile's recipe: {prof.rotation}, roll {'on' if prof.augment_roll else 'off'}, "
+                        f"{prof.shape_loss} loss", prof.recipe())}
+    unknown = set(prof.options) - set(OPTIONS)
+    if unknown:
+        raise ValueError(f"profile {prof.name}: unknown options {sorted(unknown)}; expected some of {OPTIONS}")
+    chosen = [o for o in prof.options if not (o == "recipe" and prof.recipe() == PAPER_RECIPE)]
+    rows = {}
+    for key in chosen:
+        name, kw = specs[key]
+        model, _ = fit_model(run, prof, epochs=n, out_name=run.model_file(f"model_opt_{key}").name, progress=progress,
+                             **kw)
+        v = evaluate_validation(model, dataset, prof, progress=progress)
+        rows[f"{name} ({n} epochs)"] = {
+            "accuracy": v["accuracy"], "pose median (°)": v["pose_error_deg"]["median"],
+            "pose median sym (°)": v["pose_error_deg"]["median_sym"], "within 30°": v["pose_error_deg"]["within_30"],
+            "IoU": v["completion"]["iou"], "empty completions": v["completion"]["empty_fraction"],
+            "n queries": v["n_queries"]}
+    return pd.DataFrame.from_dict(rows, orient="index")

@@ -1,0 +1,110 @@
+"""Paired bootstrap over objects, the paper's claims judged by intervals, and the paired query views."""
+import numpy as np
+import pytest
+
+from hbeo.reproduction import paired
+
+CLS = ["chair", "desk", "sofa"]
+
+
+def fake(method, pose, correct, pose_deg, edt, ms=5.0, objects=None, views=3, given=False):
+    """Metrics with per-query columns over ``objects`` (default 10 per class) x ``views``."""
+    objects = objects or [(c, f"{c}_{i:04d}") for c in CLS for i in range(10)]
+    n = len(objects) * views
+    q = {"object": [], "view": [], "class": [], "pred": [], "pose_deg": [], "pose_sym_deg": [], "edt": [],
+         "naive": [], "iou": [], "empty": [], "ms": []}
+    for k in range(n):
+        c, o = objects[k // views]
+        ok = correct(k) if callable(correct) else correct
+        for col, v in (("object", o), ("view", k % views), ("class", c), ("pred", c if ok else "other"),
+                       ("pose_deg", pose_deg(k) if callable(pose_deg) else pose_deg), ("pose_sym_deg", 0.0),
+                       ("edt", edt(k) if callable(edt) else edt), ("naive", 0.0), ("iou", 0.5), ("empty", False),
+                       ("ms", ms)):
+            q[col].append(v)
+    return {"method": method, "pose": pose, "given_class": given, "verify": None, "per_query": q}
+
+
+def test_estimates_match_the_data_and_intervals_cover_them():
+    rng = np.random.default_rng(0)
+    errs = rng.exponential(30, 90)
+    m = fake("hbeo", "3dof", lambda k: k % 4 != 0, lambda k: errs[k], 100.0)
+    boot = paired.PairedBootstrap([m], n_boot=500)
+    acc = boot.estimate(("hbeo", "3dof"), "accuracy")
+    assert acc.value == pytest.approx(np.mean([k % 4 != 0 for k in range(90)]))
+    assert acc.low < acc.value < acc.high and acc.n_objects == 30 and acc.n_queries == 90
+    med = boot.estimate(("hbeo", "3dof"), "pose_median")
+    assert med.value == pytest.approx(np.median(errs)) and med.low <= med.value <= med.high
+    assert boot.estimate(("hbeo", "3dof"), "within_30").value == pytest.approx(np.mean(errs < 30))
+
+
+def test_class_accuracy_is_the_mean_of_the_per_class_accuracies():
+    # chair: all right (30 queries), desk: all wrong, sofa: half of its objects right
+    objects = [(c, f"{c}_{i}") for c in CLS for i in range(10)]
+    m = fake("hbeo", "3dof", lambda k: k < 30 or (60 <= k < 75), 0.0, 0.0, objects=objects)
+    boot = paired.PairedBootstrap([m], n_boot=200)
+    assert boot.estimate(("hbeo", "3dof"), "class_accuracy").value == pytest.approx((1 + 0 + 0.5) / 3)
+
+
+def test_resamples_keep_class_counts_and_whole_objects():
+    m = fake("hbeo", "3dof", True, 0.0, 0.0)
+    boot = paired.PairedBootstrap([m], n_boot=50)
+    assert boot.weights.shape == (50, 30)
+    assert np.all(boot.weights.reshape(50, 3, 10).sum(axis=2) == 10)      # 10 objects per class, every resample
+
+
+def test_a_constant_gap_gives_a_degenerate_paired_interval_and_unpaired_objects_are_left_out():
+    a = fake("hbeo", "3dof", True, lambda k: 10.0 + k, 0.0)
+    b = fake("icp", "3dof", True, lambda k: 30.0 + k, 0.0, views=1,
+             objects=[(c, f"{c}_{i:04d}") for c in CLS for i in range(4)])   # a subset: view 0 of 4 per class
+    boot = paired.PairedBootstrap([a, b], n_boot=300)
+    d = boot.contrast(("hbeo", "3dof"), ("icp", "3dof"), "pose_mean")
+    assert d.n_queries == 12 and d.n_objects == 12
+    # on the shared pairs, HBEO's error is ICP's minus 20 everywhere -> the same in every resample
+    hbeo_on_pairs = [10.0 + k for k in range(90) if k % 3 == 0 and (k // 3) % 10 < 4]
+    icp = [30.0 + k for k in range(12)]
+    assert d.value == pytest.approx(np.mean(hbeo_on_pairs) - np.mean(icp))
+    assert d.low <= d.value <= d.high
+
+
+def test_verdicts_follow_the_interval():
+    E = paired.Estimate
+    assert paired.verdict(E(-5, -8, -1, 10, 10)) == "holds"
+    assert paired.verdict(E(5, 1, 8, 10, 10)) == "fails"
+    assert paired.verdict(E(1, -2, 3, 10, 10)) == "inconclusive"
+
+
+def test_claims_judged_on_paired_statistics():
+    hbeo = fake("hbeo", "3dof", lambda k: k % 10 != 0, 10.0, 100.0, ms=4.0)            # 90 % right
+    beo_known = fake("beo", "known", lambda k: k % 2 == 0, 0.0, 100.0)                  # 50 % right, same EDT
+    beo_3dof = fake("beo", "3dof", True, 50.0, 200.0, ms=10_000.0, views=1, given=True)
+    vox = fake("voxcnn", "known", lambda k: k % 10 != 0, 0.0, 50.0)                    # as accurate as HBEO
+    v = paired.judge(paired.PairedBootstrap([hbeo, beo_known, beo_3dof, vox], n_boot=300)).set_index("claim (paper)")
+    verdict = v["verdict"]
+    assert verdict["HBEO (unknown 3-DOF pose) classifies better than BEO with known pose"] == "holds"
+    assert verdict["HBEO's mean 3-DOF pose error is less than half of BEO's (BEO given the class)"] == "holds"
+    assert verdict["HBEO's completion is better than the end-to-end network's with known pose (mean EDT e')"] == "fails"
+    assert verdict[[c for c in v.index if c.startswith("HBEO classifies better than the end-to-end")][0]] == "fails"
+    assert verdict[[c for c in v.index if "competitive" in c][0]] == "holds"          # 100 <= 1.25 x 100
+    assert verdict[[c for c in v.index if "faster" in c][0]] == "holds"               # 4 ms < 10 s / 100
+    assert "ICP" not in " ".join(v.index)                                              # no ICP evaluation given
+    assert v.loc["HBEO's mean 3-DOF pose error is less than half of BEO's (BEO given the class)", "pairs"] == 30
+
+
+def test_old_files_without_object_ids_are_refused():
+    m = fake("hbeo", "3dof", True, 0.0, 0.0)
+    del m["per_query"]["object"]
+    with pytest.raises(ValueError, match="object ids"):
+        paired.PairedBootstrap([m])
+
+
+def test_query_views_are_paired_across_view_counts_and_object_lists():
+    from hbeo.data.datasets import ObjectRecord
+    from hbeo.render.views import object_key, query_rng
+    a = ObjectRecord(cls="chair", split="test", id="chair_0890")
+    b = ObjectRecord(cls="chair", split="test", id="chair_0891")
+    assert object_key(a) == object_key(ObjectRecord(cls="chair", split="test", id="chair_0890"))
+    assert object_key(a) != object_key(b)
+    x = query_rng(0, "test", a, 1).random(4)
+    assert np.array_equal(x, query_rng(0, "test", a, 1).random(4))
+    assert not np.array_equal(x, query_rng(0, "test", a, 0).random(4))
+    assert not np.array_equal(x, query_rng(0, "val", a, 1).random(4))
