@@ -3,13 +3,16 @@
 #                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile)
 #   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
+#   make book        render a run folder's executed notebooks, tables and figures to a static HTML site that
+#                    opens offline: results/$(PROFILE)-$(DATASET)/book/index.html (RUN=DIR: another run folder)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PROFILE ?= cpu
 DATASET ?= procedural
+RUN    ?= results/$(PROFILE)-$(DATASET)
 
-.PHONY: setup reproduce test test-unit test-fast test-notebooks benchmark clean-results
+.PHONY: setup reproduce book test test-unit test-fast test-notebooks benchmark clean-results
 
 setup: $(VENV)/.installed
 
@@ -19,6 +22,9 @@ $(VENV)/.installed: requirements.txt requirements-nodeps.txt scripts/setup.sh
 
 reproduce: setup
 	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter 1,$(RESUME)),,--fresh)
+
+book: setup
+	$(PY) -m hbeo.reproduction.book $(RUN)
 
 test: setup test-unit test-notebooks
 

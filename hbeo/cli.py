@@ -202,11 +202,11 @@ def cmd_train(args) -> int:
             ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not quiet)
     distributed.barrier()
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
-    model, path = fit_model(run, prof, epochs=args.epochs, rotation=args.rotation, normalization=args.normalize,
-                            view=view, seed=args.seed, out_name=args.name, progress=not quiet, loss=weights,
-                            augment_roll=args.augment_roll, max_steps=args.max_steps, data=source,
-                            dataset=args.dataset, settings=settings, checkpoint_every=args.checkpoint_every,
-                            loader_workers=args.loader_workers, shape_loss=args.shape_loss)
+    recipe = {k: prof.recipe()[k] if getattr(args, k) is None else getattr(args, k) for k in prof.recipe()}
+    model, path = fit_model(run, prof, epochs=args.epochs, normalization=args.normalize, view=view, seed=args.seed,
+                            out_name=args.name, progress=not quiet, loss=weights, max_steps=args.max_steps,
+                            data=source, dataset=args.dataset, settings=settings, checkpoint_every=args.checkpoint_every,
+                            loader_workers=args.loader_workers, **recipe)
     distributed.barrier()                             # the model file is complete before any process exits
     if world.main:
         print(f"model: {path} ({model.net.n_params():,} parameters, {len(model.classes)} classes, "
@@ -349,9 +349,9 @@ def cmd_report(args) -> int:
         path = write_model_table(args.run, args.readme)
         print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
         return 0
-    from hbeo.reproduction.report import write_reproduction
+    from hbeo.reproduction.report import write_reproduction, write_summary
     path = write_reproduction(args.run, args.out)
-    print(f"wrote {path}")
+    print(f"wrote {path}" + (f" and the summary block of {write_summary(args.run, args.readme)}" if args.readme else ""))
     return 0
 
 
@@ -422,18 +422,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "rendered on the fly with a fresh pose per object per pass (default: the profile's)")
     p.add_argument("--loss-weights", default="1,1,1",
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
-    p.add_argument("--shape-loss", choices=("coeffs", "voxels"), default="coeffs",
-                   help="shape term: the standardized coefficient error (paper, default) or the completed grid's "
-                        "occupancy error through the basis (raw coefficients; leading components weigh most)")
+    p.add_argument("--shape-loss", choices=("coeffs", "voxels"),
+                   help="shape term: the standardized coefficient error (paper) or the completed grid's occupancy "
+                        "error through the basis (default: the profile's recipe, hbeo.config.Profile.recipe)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
-    p.add_argument("--rotation", choices=("axis_angle", "6d", "bins"), default="axis_angle",
-                   help="pose output: the paper's axis-angle (default), the continuous 6-D representation, "
-                        "or a distribution over a grid of rotations (bins)")
+    p.add_argument("--rotation", choices=("axis_angle", "6d", "bins"),
+                   help="pose output: the paper's axis-angle, the continuous 6-D representation, or a distribution "
+                        "over a grid of rotations (bins); default: the profile's recipe")
     p.add_argument("--normalize", choices=("none", "center"), default="none",
                    help="depth input: metres as rendered (paper, default) or centred on the object's median depth")
-    p.add_argument("--augment-roll", action="store_true",
-                   help="roll each training view by a random angle about the optical axis every epoch (exact)")
+    p.add_argument("--augment-roll", action=argparse.BooleanOptionalAction,
+                   help="roll each training view by a random angle about the optical axis every epoch (exact; "
+                        "default: the profile's recipe)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=float, help="distance-insensitive input: zoom to this object distance (m)")
     p.add_argument("--seed", type=int, default=0)
@@ -498,7 +499,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output file (default: paper/REPRODUCTION.md)")
     p.add_argument("--model-table", action="store_true",
                    help="instead: the model table (validation / test) from the run's models.json -> model_table.md")
-    p.add_argument("--readme", help="with --model-table: also replace the table's block in this README")
+    p.add_argument("--readme", help="also replace the generated block (summary, or with --model-table the tables) in "
+                                    "this README")
     p.set_defaults(func=cmd_report)
     return ap
 

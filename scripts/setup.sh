@@ -6,8 +6,9 @@ PYTHON=${PYTHON:-python3}
 VENV=${VENV:-.venv}
 cd "$(dirname "$0")/.."
 
-# Debian packages the renderer needs (OSMesa for CPU machines, EGL for GPUs).
-DEB_PACKAGES="libosmesa6 libegl1 libgl1 libgles2 libglu1-mesa"
+# Debian packages the renderer needs (OSMesa for CPU machines, EGL for GPUs), and the headless browser that
+# tests the run's book (tests/test_book.py drives it through playwright, which must not download its own).
+DEB_PACKAGES="libosmesa6 libegl1 libgl1 libgles2 libglu1-mesa chromium"
 missing=""
 for p in $DEB_PACKAGES; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
@@ -19,7 +20,7 @@ if [ -n "$missing" ]; then
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
   else
-    echo "[setup] warning: not a Debian system; install OSMesa/EGL yourself:$missing" >&2
+    echo "[setup] warning: not a Debian system; install OSMesa/EGL (and chromium) yourself:$missing" >&2
   fi
 fi
 
@@ -41,4 +42,4 @@ pip_q install -r requirements.txt
 pip_q install --no-deps -r requirements-nodeps.txt
 pip_q install --no-deps -e .
 "$VENV/bin/python" -m ipykernel install --sys-prefix --name python3 >/dev/null
-"$VENV/bin/python" -c "import hbeo, torch, trimesh, pyrender, papermill, nbval; print('[setup] ok:', hbeo.__file__)"
+"$VENV/bin/python" -c "import hbeo, torch, trimesh, pyrender, papermill, nbval, nbconvert, latex2mathml, playwright; print('[setup] ok:', hbeo.__file__)"

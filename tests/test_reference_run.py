@@ -1,9 +1,10 @@
 """The committed real-data model still gives its committed numbers.
 
-``results/cpu-modelnet10-vox30/model.hbeo`` (the `cpu` profile on the ModelNet10 grids: the issue-16
-reference model, rotation bins, roll augmentation, voxel loss, 30 epochs) evaluated on the whole test
-split, three views per object, seed 0, must reproduce ``eval_test-ref.json`` query by query: the same
-object and view, predicted class, pose error and completion for each of the 2,721 views.
+``results/cpu-modelnet10-vox30/model.hbeo`` (trained by the reference run, `make reproduce PROFILE=cpu
+DATASET=modelnet10-vox30`: rotation bins, roll augmentation, voxel loss, 30 epochs) evaluated on the
+paired test views of the run (every usable test object, three views each, seed 0) must reproduce the run's
+``eval_hbeo_3dof.json`` query by query: the same object and view, predicted class, pose error and
+completion for each of the 2,721 views.
 """
 import json
 from pathlib import Path
@@ -13,6 +14,7 @@ import pytest
 
 from hbeo import config
 from hbeo.rundir import RunDir
+from hbeo.storage import sha256_file
 
 pytestmark = pytest.mark.slow
 
@@ -21,7 +23,7 @@ RUN = RunDir(Path(__file__).resolve().parent.parent / "results" / "cpu-modelnet1
 
 @pytest.fixture(scope="module")
 def committed():
-    return json.loads(RUN.named_evaluation("test-ref").read_text())
+    return json.loads(RUN.evaluation("hbeo", "3dof").read_text())
 
 
 def test_the_committed_model_reproduces_its_committed_evaluation(vox30_file, committed, monkeypatch):
@@ -33,8 +35,10 @@ def test_the_committed_model_reproduces_its_committed_evaluation(vox30_file, com
     model = HBEO.load(RUN.model)
     with pytest.warns(UserWarning, match="empty grids"):
         ds = get_dataset("modelnet10-vox30", profile=config.get_profile("cpu"))
-    got = evaluate_model(model, ds, split="test", views=committed["views"], seed=committed["seed"],
-                         progress=False)
+    req = committed["request"]
+    assert (req["per_class"], req["views"], req["seed"]) == (None, 3, 0)     # the whole split, as the README says
+    assert sha256_file(RUN.model)[:16] == req["model_sha256"]                 # of this very model file
+    got = evaluate_model(model, ds, split="test", views=req["views"], seed=req["seed"], progress=False)
     assert got["n_objects"] == committed["n_objects"] == 907 and got["n_queries"] == committed["n_queries"]
     assert got["accuracy"] == committed["accuracy"]
     a, b = got["per_query"], committed["per_query"]

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# The committed reference run (issue 17) and the README's model table for its model, in the order they were made.
+#   1. `make reproduce PROFILE=cpu DATASET=modelnet10-vox30` from a clean clone at a tagged commit: notebooks
+#      01-07, every model trained inside the run, paper/REPRODUCTION.md written by the run.
+#   2. the model table's rows for the run's model.hbeo: validation (one pass, 4 rolls, 4 rolls + verify: the
+#      choices of issue 16, checked again for this model) and the test split with 4 rolls alone (the run's
+#      eval_hbeo_3dof.json and eval_hbeo-verify_3dof.json are the other two test rows; models.json names them).
+#   3. the README's generated blocks.
+# Usage: bash scripts/reference_run.sh [PY]   (steps 2-3 only with SKIP_RUN=1)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${1:-.venv/bin/python}
+D=modelnet10-vox30
+R=results/cpu-$D
+[ "${SKIP_RUN:-0}" = 1 ] || make reproduce PROFILE=cpu DATASET=$D
+E="$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --views 3 --seed 0 --quiet"
+$E --split val --out $R/eval_val-ref.json
+$E --split val --rolls 4 --out $R/eval_val-ref-rolls4.json
+$E --split val --rolls 4 --verify --out $R/eval_val-ref-verify.json
+$E --split test --rolls 4 --out $R/eval_test-ref-rolls4.json
+$PY -m hbeo report --model-table --run $R --readme README.md
+$PY -m hbeo report --run $R --readme README.md

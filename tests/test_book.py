@@ -1,0 +1,149 @@
+"""The run's book (`make book`, hbeo.reproduction.book): pages for every executed notebook, the index with the
+manifest, tables and figures, nothing loaded from the network, and a real browser shows it without errors."""
+import base64
+import io
+import json
+import re
+import shutil
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+from PIL import Image
+
+from hbeo.errors import DataError
+from hbeo.reproduction import book
+
+CHROMIUM = next((p for p in (shutil.which("chromium"), "/usr/bin/chromium") if p and Path(p).is_file()), None)
+
+
+def _png(width=40, height=30, mode="RGB", value=200) -> bytes:
+    arr = np.full((height, width, 3) if mode == "RGB" else (height, width), value,
+                  np.uint8 if mode == "RGB" else np.uint16)
+    buf = io.BytesIO()
+    Image.fromarray(arr).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _executed_notebook(path: Path) -> None:
+    """A small notebook as papermill leaves it: Markdown with math, a text output, a PNG figure, an HTML
+    table, a progress-bar widget (its state in the metadata) with a text fallback."""
+    nb = nbformat.v4.new_notebook()
+    nb.metadata["widgets"] = {"application/vnd.jupyter.widget-state+json": {"state": {}, "version_major": 2}}
+    nb.cells = [
+        nbformat.v4.new_markdown_cell("# 01 · A tiny notebook\n\nAn object is $o' = W^\\top o$; "
+                                      "$$\\lVert D - \\hat D \\rVert_2$$"),
+        nbformat.v4.new_code_cell("print('hello')", execution_count=1,
+                                  outputs=[nbformat.v4.new_output("stream", name="stdout", text="hello\n")]),
+        nbformat.v4.new_code_cell("fig", execution_count=2, outputs=[nbformat.v4.new_output(
+            "display_data", data={"image/png": base64.b64encode(_png()).decode(), "text/plain": "<Figure>"})]),
+        nbformat.v4.new_code_cell("table", execution_count=3, outputs=[nbformat.v4.new_output(
+            "execute_result", execution_count=3,
+            data={"text/html": "<table><tr><th>class</th><td>bathtub</td></tr></table>", "text/plain": "table"})]),
+        nbformat.v4.new_code_cell("progress", execution_count=4, outputs=[nbformat.v4.new_output(
+            "display_data", data={"application/vnd.jupyter.widget-view+json": {"model_id": "abc", "version_major": 2,
+                                                                              "version_minor": 0},
+                                  "text/plain": "progress 100%"})]),
+    ]
+    nbformat.write(nb, path)
+
+
+@pytest.fixture()
+def run_folder(tmp_path):
+    """A run folder as ``python -m hbeo reproduce`` leaves it, in miniature."""
+    run = tmp_path / "ci-procedural"
+    run.mkdir()
+    _executed_notebook(run / "01_tiny.ipynb")
+    _executed_notebook(run / "02_other.ipynb")
+    (run / "05_table1.md").write_text("| method | accuracy |\n| --- | ---: |\n| HBEO | 81.8 |\n")
+    (run / "05_confusion.png").write_bytes(_png(64, 48))
+    (run / "08_depth_mm.png").write_bytes(_png(16, 12, mode="I;16", value=1500))      # data, not a figure
+    manifest = {"profile": "ci", "dataset": "procedural", "git_commit": "0123456789abcdef", "git_dirty": False,
+                "notebooks": {"01_tiny": {"wall_s": 12.5, "commit": "0123456789abcdef", "dirty": False},
+                              "02_other": {"wall_s": 75.0, "commit": "0123456789abcdef", "dirty": False}},
+                "wall_time_total_s": 87.5, "one_commit": True}
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    return run
+
+
+def test_build_book_writes_every_page_offline(run_folder):
+    index = book.build_book(run_folder)
+    out = run_folder / book.BOOK_DIR
+    assert index == out / "index.html"
+    pages = sorted(p.name for p in out.glob("*.html"))
+    assert pages == ["01_tiny.html", "02_other.html", "index.html"]
+    text = index.read_text()
+    for expected in ("0123456789abcdef", "ci", "procedural", "1.5 min", 'href="01_tiny.html"', 'href="02_other.html"',
+                     "<td>HBEO</td>", 'src="figures/05_confusion.png"', "08_depth_mm.png"):
+        assert expected in text, expected
+    assert (out / "figures" / "05_confusion.png").read_bytes() == (run_folder / "05_confusion.png").read_bytes()
+    assert not (out / "figures" / "08_depth_mm.png").exists(), "a 16-bit depth image is data, not a figure"
+    page = (out / "01_tiny.html").read_text()
+    assert "<math" in page and "$o'" not in page, "math is written as MathML"
+    assert re.search(r'<img[^>]+src="data:image/png;base64,', page), "notebook images are embedded"
+    assert "progress 100%" in page and "widget-view" not in page and "widget-state" not in page
+    assert 'href="index.html"' in page
+    for p in out.rglob("*.html"):
+        body = p.read_text()
+        assert "http://" not in body and "https://" not in body, f"{p.name} names an address on the network"
+        assert book.remote_references(body) == []
+
+
+def test_rebuild_drops_pages_of_notebooks_gone(run_folder):
+    book.build_book(run_folder)
+    (run_folder / "02_other.ipynb").unlink()
+    (run_folder / "05_confusion.png").unlink()
+    book.build_book(run_folder)
+    out = run_folder / book.BOOK_DIR
+    assert not (out / "02_other.html").exists() and not (out / "figures" / "05_confusion.png").exists()
+
+
+def test_remote_references_finds_what_would_load():
+    page = ('<script src="https://cdn.example/x.js"></script><link rel="stylesheet" href="//cdn.example/a.css">'
+            '<style>@import url("http://x/y.css"); .a { background: url(https://x/bg.png) }</style>'
+            '<img srcset="https://x/1.png 1x">')
+    assert len(book.remote_references(page)) == 5
+    assert book.remote_references('<a href="https://example.org/paper">paper</a><img src="figures/a.png">') == []
+
+
+def test_bad_run_folders_are_refused(tmp_path, capsys):
+    with pytest.raises(DataError, match="no executed notebooks"):
+        book.build_book(tmp_path)
+    assert book.main([str(tmp_path)]) == 2
+    assert "no executed notebooks" in capsys.readouterr().err
+
+
+def test_command_line_writes_to_the_folder_given(run_folder, tmp_path, capsys):
+    assert book.main([str(run_folder), str(tmp_path / "site")]) == 0
+    assert (tmp_path / "site" / "index.html").is_file() and "site" in capsys.readouterr().out
+
+
+def test_chromium_shows_the_book_without_errors(run_folder):
+    """Headless Chromium opens the index and a notebook page from disk: no console error, no request to the
+    network, every image loaded."""
+    if CHROMIUM is None:
+        pytest.skip("no chromium binary (scripts/setup.sh installs Debian's chromium)")
+    from playwright.sync_api import sync_playwright
+    out = run_folder / book.BOOK_DIR
+    book.build_book(run_folder)
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM)
+        try:
+            for name in ("index.html", "01_tiny.html"):
+                page = browser.new_page()
+                errors, remote = [], []
+                page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+                page.on("pageerror", lambda e: errors.append(str(e)))
+                page.on("requestfailed", lambda r: errors.append(f"failed: {r.url}"))
+                page.on("request", lambda r: remote.append(r.url) if not r.url.startswith(("file:", "data:")) else None)
+                page.goto((out / name).as_uri(), wait_until="load")
+                sizes = page.evaluate("Array.from(document.images).map(i => i.complete ? i.naturalWidth : 0)")
+                assert errors == [], f"{name}: {errors}"
+                assert remote == [], f"{name} asked the network for {remote}"
+                assert sizes and all(w > 0 for w in sizes), f"{name}: images not loaded: {sizes}"
+                if name != "index.html":
+                    assert page.locator("math").count() >= 2, "MathML math is in the page"
+                page.close()
+        finally:
+            browser.close()

@@ -1,0 +1,71 @@
+"""Provenance of a run: the manifest (commit, tag, clean tree, notebooks at which commit, training from
+scratch or resumed), fresh runs that retrain everything, the run's report, and a notebook run alone."""
+import json
+from pathlib import Path
+
+import pytest
+
+from hbeo.reproduction import notebooks, provenance, report
+from hbeo.rundir import RunDir
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_manifest_records_each_notebook_s_commit_and_training(tmp_path, monkeypatch):
+    run = RunDir(tmp_path / "run").create()
+    (run.path / "train_model").mkdir()
+    (run.path / "train_model" / "provenance.json").write_text(json.dumps(
+        {"model": "model.hbeo", "epochs": 3, "resumed_from_step": None, "n_params": 1234}))
+    states = iter([{"git_commit": "a" * 40, "git_tag": "t1", "git_dirty": False},
+                   {"git_commit": "b" * 40, "git_tag": None, "git_dirty": True}])
+    monkeypatch.setattr(provenance, "git_state", lambda: next(states))
+    m = provenance.write_manifest(run, "ci", "procedural", {"01_voxelize": 1.5}, fresh=True)
+    assert m["notebooks"]["01_voxelize"]["commit"] == "a" * 40 and m["one_commit"] and m["git_tag"] == "t1"
+    assert m["training"]["model.hbeo"]["resumed_from_step"] is None and m["code_version"]
+    m = provenance.write_manifest(run, "ci", "procedural", {"02_subspace": 2.5})
+    assert set(m["notebooks"]) == {"01_voxelize", "02_subspace"} and m["wall_time_total_s"] == 4.0
+    assert not m["one_commit"]                          # a second commit, and a dirty tree
+    text = report.reproduction_text(run, tmp_path / "R.md")
+    assert "(notebooks at different commits)" in text and "uncommitted changes" in text
+    assert "`model.hbeo`: 3 epochs, from scratch, 1,234 parameters" in text
+    assert "## Deviations from the paper" in text and "HBEONet has 0.00 M parameters" in text
+
+
+def test_git_state_ignores_the_run_s_own_outputs():
+    state = provenance.git_state()
+    assert len(state["git_commit"] or "") == 40 and state["git_dirty"] in (True, False)
+
+
+def test_fresh_clears_what_a_run_trained_but_keeps_data(tmp_path):
+    run = RunDir(tmp_path / "run").create()
+    keep = [run.path / "grids_train.npz", run.path / "subspace.npz", run.path / "eval_so3_bins.json",
+            run.path / "05_table1.csv"]
+    gone = [run.model, run.path / "model_opt_paper.hbeo", run.baseline("beo"), run.baseline("voxcnn"),
+            run.evaluation("hbeo", "3dof"), run.evaluation("hbeo-verify", "3dof")]
+    for p in keep + gone:
+        p.write_text("x")
+    (run.path / "train_model").mkdir()
+    (run.path / "train_model" / "checkpoint.pt").write_text("x")
+    removed = notebooks.clear_products(run)
+    assert set(removed) == set(gone) | {run.path / "train_model"}
+    assert all(p.exists() for p in keep) and not any(p.exists() for p in gone)
+
+
+def test_reports_go_to_the_run_and_only_the_reference_run_writes_paper(tmp_path, monkeypatch):
+    written = []
+    monkeypatch.setattr(report, "write_reproduction", lambda run, out=None: written.append(out) or out)
+    run = RunDir(tmp_path / "run").create()
+    report.write_reports(run, "cpu", "modelnet10-vox30")
+    assert written == [run.path / "REPRODUCTION.md"]       # not the default place: paper/ untouched
+
+
+@pytest.mark.slow
+def test_notebook_06_runs_alone_in_an_empty_run_folder(tmp_path):
+    """Notebook 06 on a fresh folder builds what it needs (grids, subspace, renders, the model, baselines)."""
+    import papermill as pm
+    out = tmp_path / "run"
+    pm.execute_notebook(str(ROOT / "notebooks" / "06_pose_completion.ipynb"), str(tmp_path / "06.ipynb"),
+                        cwd=str(ROOT / "notebooks"), progress_bar=False,
+                        parameters={"profile": "ci", "dataset": "procedural", "out_dir": str(out)})
+    run = RunDir(out)
+    assert run.model.exists() and run.table("06_claims").exists() and run.figure("06_pose_error").exists()
