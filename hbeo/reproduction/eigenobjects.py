@@ -29,16 +29,20 @@ def component_counts(sub, train) -> pd.DataFrame:
 
 
 def spectrum_figure(sub, variance: float = 0.6):
-    """Cumulative explained variance per class against the number of components (log scale),
-    with ``variance`` marked."""
+    """Cumulative explained variance per class against the number of components (log scale, plain
+    tick labels), with ``variance`` marked by a dashed line in the legend."""
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    fig, ax = plt.subplots(figsize=(7.5, 4), layout="constrained")
     for c, r in sub.class_spectrum_.items():
         ax.plot(np.arange(1, len(r) + 1), np.cumsum(r), label=c)
-    ax.axhline(variance, color="k", ls="--", lw=0.8)
-    ax.set(xscale="log", xlabel="components", ylabel="cumulative explained variance",
-           title="VBPCA spectrum per class")
-    ax.legend(fontsize=7, ncol=2)
+    ax.axhline(variance, color="k", ls="--", lw=0.8, label=f"{variance:.0%} of the variance:\ncomponents kept")
+    ax.set(xscale="log", xlabel="components (log scale)", ylabel="cumulative explained variance")
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1, 2, 3, 5)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    fig.suptitle("VBPCA spectrum per class: variance explained by the first k components", fontsize=11)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     return fig
 
 
@@ -76,8 +80,10 @@ def reconstruction_gallery(sub, test, full: pd.DataFrame):
     pick = one_per_class(test)
     recon = sub.reconstruct(sub.project(test.grids[pick]), threshold=0.5)
     grids = [g for pair in zip(test.grids[pick], recon) for g in pair]
-    titles = [t for i in pick for t in (f"{test.ids[i]}\ntruth", f"IoU {full.iou[i]:.2f}")]
-    return figures.gallery(grids, titles, ncols=6, size=110, panel=1.4)
+    titles = [t for i in pick for t in (f"{test.ids[i]}\ntruth", f"full projection\nIoU {full.iou[i]:.2f}")]
+    title = ("Held-out test grids, one per class (truth), beside their completion from the full projection "
+             "onto the shared subspace (field thresholded at 0.5), titled with its IoU with the truth")
+    return figures.gallery(grids, titles, ncols=6, size=110, panel=1.4, title=title)
 
 
 def half_mask(shape) -> np.ndarray:
@@ -99,10 +105,14 @@ def partial_table(sub, test, full: pd.DataFrame, known: np.ndarray, seed: int = 
 
 def partial_gallery(sub, test, known: np.ndarray):
     """One test grid per class: what ``known`` lets through, its partial-projection completion,
-    and the truth."""
+    and the truth (titles assume :func:`half_mask`)."""
     pick = one_per_class(test)
     obs = test.grids[pick] & known[pick]
     comp = sub.reconstruct(sub.partial_project(test.grids[pick], known[pick]), threshold=0.5)
     grids = [g for trio in zip(obs, comp, test.grids[pick]) for g in trio]
-    titles = [t for i in pick for t in (f"{test.ids[i]}\nseen (y < {HIDDEN_FROM})", "completed", "truth")]
-    return figures.gallery(grids, titles, ncols=6, size=110, panel=1.4)
+    titles = [t for i in pick for t in (f"{test.ids[i]}\nseen (y < {HIDDEN_FROM})",
+                                        f"partial projection,\ny ≥ {HIDDEN_FROM} hidden", "truth")]
+    title = (f"Completion from half a grid: the voxels with y ≥ {HIDDEN_FROM} (grid index) are hidden, "
+             "and the partial projection fits the subspace coordinates to the seen voxels only; per test grid: "
+             "seen half, completion, truth")
+    return figures.gallery(grids, titles, ncols=6, size=110, panel=1.4, title=title)

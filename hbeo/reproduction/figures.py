@@ -109,13 +109,20 @@ def render_voxels(grid: np.ndarray, azim: float = -60.0, elev: float = 25.0, siz
     return rgb.reshape(size, size, 3)
 
 
-def gallery(grids, titles=None, ncols: int = 5, size: int = 160, panel: float = 1.8, **view):
-    """Matplotlib figure showing grids (sequence of (R, R, R)) in a table of rendered panels."""
+def gallery(grids, titles=None, ncols: int = 5, size: int = 160, panel: float = 1.8, title: str | None = None,
+            **view):
+    """Matplotlib figure showing grids (sequence of (R, R, R)) in a table of rendered panels, under
+    the figure title ``title`` (wrapped to the figure's width) when given."""
+    import textwrap
     import matplotlib.pyplot as plt
     n = len(grids)
     ncols = max(1, min(ncols, n))
     nrows = max(1, int(np.ceil(n / ncols)))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(panel * ncols, panel * nrows + 0.3), squeeze=False)
+    width = panel * ncols
+    lines = [w for part in (title or "").split("\n") for w in textwrap.wrap(part, int(width * 72 / 5.8)) or [""]]
+    head = 0.19 * len(lines) + 0.15 if title else 0.0                # inches above the panels
+    height = panel * nrows + 0.3 + head
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width, height), squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for i, g in enumerate(grids):
@@ -123,24 +130,33 @@ def gallery(grids, titles=None, ncols: int = 5, size: int = 160, panel: float = 
         ax.imshow(render_voxels(g, size=size, **view))
         if titles is not None:
             ax.set_title(titles[i], fontsize=8)
-    fig.tight_layout()
+    if title:
+        fig.suptitle("\n".join(lines), fontsize=10, y=1 - 0.05 / height, va="top").set_in_layout(False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - head / height))
     return fig
 
 
-def class_gallery(gridset, per_class: int = 3, **kw):
-    """Gallery with ``per_class`` examples of each class of a :class:`hbeo.data.gridset.GridSet`."""
+def class_gallery(gridset, per_class: int = 3, title: str | None = None, **kw):
+    """Gallery with ``per_class`` examples of each class of a :class:`hbeo.data.gridset.GridSet`,
+    titled with the split and the viewpoint (``title`` replaces that figure title)."""
     picks, titles = [], []
     for ci, name in enumerate(gridset.classes):
         idx = np.flatnonzero(gridset.labels == ci)[:per_class]
         for i in idx:
             picks.append(gridset.grids[i])
             titles.append(f"{name}\n{gridset.ids[i]}")
-    return gallery(picks, titles, ncols=per_class * 2 if per_class <= 3 else per_class, **kw)
+    if title is None:
+        r, split = gridset.grids.shape[-1], {"train": "training"}.get(gridset.split, gridset.split)
+        az, el = (f"{kw.get(k, d):g}°".replace("-", "−") for k, d in (("azim", -60.0), ("elev", 25.0)))
+        title = (f"The first {per_class} {split} grids of each class: filled {r}³ occupancy grids, "
+                 f"seen from azimuth {az}, elevation {el} (+z up)")
+    return gallery(picks, titles, ncols=per_class * 2 if per_class <= 3 else per_class, title=title, **kw)
 
 
-def eigen_gallery(subspace, classes=None, modes: int = 2, sigmas: float = 2.0, **kw):
+def eigen_gallery(subspace, classes=None, modes: int = 2, sigmas: float = 2.0, title: str | None = None, **kw):
     """Eigen-objects: per class, the mean and the mean moved -/+ ``sigmas`` standard deviations
-    along each of the first ``modes`` components (fields thresholded at 0.5)."""
+    along each of the first ``modes`` components (fields thresholded at 0.5); ``title`` replaces the
+    figure title that says so."""
     grids, titles = [], []
     for c in classes or subspace.classes_:
         n = min(modes, subspace.n_components_[c])
@@ -150,34 +166,63 @@ def eigen_gallery(subspace, classes=None, modes: int = 2, sigmas: float = 2.0, *
             for sgn in (-1, 1):
                 ok = j < n
                 grids.append(subspace.eigen_object(c, j, sgn * sigmas) >= 0.5 if ok else np.zeros((1, 1, 1), bool))
-                titles.append(f"mode {j + 1} {'-' if sgn < 0 else '+'}{sigmas:g}σ" if ok else "")
-    return gallery(grids, titles, ncols=1 + 2 * modes, **kw)
+                titles.append(f"mode {j + 1} {'−' if sgn < 0 else '+'}{sigmas:g}σ" if ok else "")
+    if title is None:
+        title = (f"Eigen-objects: each class's mean grid and the mean moved ± {sigmas:g}σ along its first "
+                 f"{modes} principal components (σ: the standard deviation of the class's training grids "
+                 f"along that component; fields thresholded at 0.5; blank: the class kept fewer components)")
+    return gallery(grids, titles, ncols=1 + 2 * modes, title=title, **kw)
 
 
-def show_depth(ax, depth, title: str | None = None, vmax: float | None = None):
-    """Draw a depth image (H, W), metres, on a matplotlib axis: near = bright, no object = white."""
+def show_depth(ax, depth, title: str | None = None, vmax: float | None = None, vmin: float | None = None,
+               colorbar: bool = False):
+    """Draw a depth image (H, W), metres, on a matplotlib axis: near = bright, no object = white.
+    The colour scale runs from ``vmin`` to ``vmax`` (default: this image's nearest and farthest
+    pixel; give panels one pair to share a scale); ``colorbar`` adds a bar in metres beside ``ax``.
+    Returns the image (for a colour bar shared by several panels)."""
     d = np.ma.masked_less_equal(np.asarray(depth, dtype=np.float32), 0)
-    ax.imshow(d, cmap="viridis_r", vmin=d.min() if d.count() else 0, vmax=vmax or (d.max() if d.count() else 1))
+    lo = vmin if vmin is not None else (d.min() if d.count() else 0)
+    im = ax.imshow(d, cmap="viridis_r", vmin=lo, vmax=vmax or (d.max() if d.count() else 1))
     ax.set_axis_off()
     if title:
         ax.set_title(title, fontsize=8)
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04).set_label("depth (m)", fontsize=8)
+    return im
 
 
-def depth_and_grid_gallery(items, size: int = 120, panel: float = 1.7):
-    """Figure with pairs (depth image, its object's grid): ``items`` = [(depth, grid, title), ...]."""
+def depth_and_grid_gallery(items, size: int = 120, panel: float = 1.7, title: str | None = None):
+    """Figure with pairs (depth image, its object's grid): ``items`` = [(depth, grid, title), ...];
+    the depth images share one colour scale, shown by a colour bar in metres; ``title``: the
+    figure title."""
     import matplotlib.pyplot as plt
     n = len(items)
     ncols = 4
     nrows = max(1, int(np.ceil(n / 2)))
-    fig, axes = plt.subplots(nrows, ncols, figsize=(panel * ncols, panel * nrows + 0.3), squeeze=False)
+    seen = np.concatenate([np.asarray(d, np.float32).ravel() for d, _, _ in items] or [np.zeros(0)])
+    seen = seen[seen > 0]
+    lo, hi = (float(seen.min()), float(seen.max())) if len(seen) else (0.0, 1.0)
+    bar = 0.9                                                   # inches on the right for the colour bar
+    head = 0.4 * (title or "").count("\n") + 0.45 if title else 0.0
+    fig, axes = plt.subplots(nrows, ncols, figsize=(panel * ncols + bar, panel * nrows + 0.3 + head),
+                             squeeze=False)
     for ax in axes.ravel():
         ax.set_axis_off()
-    for i, (depth, grid, title) in enumerate(items):
+    im = None
+    for i, (depth, grid, title_i) in enumerate(items):
         a, b = axes[i // 2, 2 * (i % 2)], axes[i // 2, 2 * (i % 2) + 1]
-        show_depth(a, depth, title)
+        im = show_depth(a, depth, title_i, vmin=lo, vmax=hi)
         b.imshow(render_voxels(grid, size=size))
-        b.set_title("grid (canonical frame)", fontsize=8)
-    fig.tight_layout()
+        b.set_title("its grid (canonical frame)", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    right = panel * ncols / (panel * ncols + bar)
+    fig.tight_layout(rect=(0, 0, right, 1))
+    if im is not None:
+        top, bottom = axes[0, 0].get_position().y1, axes[-1, 0].get_position().y0
+        cax = fig.add_axes((right + 0.15 * (1 - right), bottom + 0.15 * (top - bottom), 0.12 * (1 - right),
+                            0.7 * (top - bottom)))
+        fig.colorbar(im, cax=cax).set_label("depth (m)", fontsize=8)
     return fig
 
 

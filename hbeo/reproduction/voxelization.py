@@ -42,8 +42,9 @@ def class_counts(ds, profile) -> pd.DataFrame:
 
 
 def steps_figure(ds, profile):
-    """The run's first training object: its mesh's vertices (y, z), the surface voxels and the
-    solid grid, from the same viewpoint. None (with a note) when the source stores grids only."""
+    """The run's first training object: its mesh's vertices (y against z, mesh units), the surface
+    voxels and the filled grid, the two grids from the renderer's default viewpoint. None (with a
+    note) when the source stores grids only."""
     import matplotlib.pyplot as plt
     from hbeo.data.voxel import fill_solid, surface_grid
     rec = datasets.select(ds, "train", profile)[0]
@@ -53,14 +54,21 @@ def steps_figure(ds, profile):
     mesh = rec.mesh()
     surface = surface_grid(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     solid = fill_solid(surface, close=1)
-    fig, ax = plt.subplots(1, 3, figsize=(9, 3))
-    ax[0].scatter(mesh.vertices[:, 1], mesh.vertices[:, 2], s=1)
-    ax[0].set_aspect("equal")
-    ax[0].set_title(f"{rec.id}: vertices (y, z)")
-    for a, g, t in [(ax[1], surface, "surface voxels"), (ax[2], solid, "solid grid")]:
+    r = conventions.RESOLUTION
+    fig, ax = plt.subplots(1, 3, figsize=(9, 3.6), layout="constrained")
+    v = np.asarray(mesh.vertices)
+    mid, half = (v.max(0) + v.min(0)) / 2, 0.55 * (v.max(0) - v.min(0)).max()   # the grid's cube + 10 %
+    ax[0].scatter(v[:, 1], v[:, 2], s=1)
+    ax[0].set(xlim=(mid[1] - half, mid[1] + half))             # z follows: equal aspect, centred on the mesh
+    ax[0].set_aspect("equal", adjustable="datalim")
+    ax[0].set(xlabel="y (mesh units)", ylabel="z (mesh units)")
+    ax[0].set_title(f"mesh: {len(v)} vertices", fontsize=9)
+    for a, g, t in [(ax[1], surface, "surface voxels"), (ax[2], solid, "filled voxels")]:
         a.imshow(figures.render_voxels(g))
-        a.set_title(f"{t}: {g.sum()}")
+        a.set_title(f"{t}: {g.sum()}", fontsize=9)
         a.axis("off")
+    fig.suptitle(f"Voxelizing {rec.id} into the {r}³ grid: mesh vertices (side view along x) → surface "
+                 f"voxels → filled voxels\n(grids seen from azimuth −60°, elevation 25°, +z up)", fontsize=10)
     return fig
 
 
