@@ -147,3 +147,52 @@ def test_chromium_shows_the_book_without_errors(run_folder):
                 page.close()
         finally:
             browser.close()
+
+
+@pytest.mark.slow
+def test_chromium_shows_a_3d_view_offline(tmp_path):
+    """A notebook page with a rotatable 3-D view (hbeo.reproduction.viewer: plotly.js embedded) passes the book's
+    offline check, and headless Chromium draws the plot from disk: no console error, no request to the network,
+    the plotly graph rendered with a non-zero size and its 3-D scene's WebGL canvas."""
+    if CHROMIUM is None:
+        pytest.skip("no chromium binary (scripts/setup.sh installs Debian's chromium)")
+    from playwright.sync_api import sync_playwright
+    from hbeo.reproduction import viewer
+    grid = np.zeros((30, 30, 30), bool)
+    grid[6:22, 8:22, 3:11] = True
+    grid[6:22, 19:22, 11:26] = True
+    pts = np.random.default_rng(0).uniform(6, 22, (300, 3))
+    html = viewer.to_html(viewer.figure(viewer.View3D(grid, pts, "true pose", truth=grid, title="3-D view")))
+    run = tmp_path / "ci-procedural"
+    run.mkdir()
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_markdown_cell("# 06 · A 3-D view"),
+                nbformat.v4.new_code_cell("viewer.show(view)", execution_count=1, outputs=[nbformat.v4.new_output(
+                    "display_data", data={"text/html": html, "text/plain": "<IPython.core.display.HTML object>"})])]
+    nbformat.write(nb, run / "06_view.ipynb")
+    book.build_book(run)
+    page_file = run / book.BOOK_DIR / "06_view.html"
+    assert book.remote_references(page_file.read_text()) == []
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM)
+        try:
+            page = browser.new_page()
+            errors, remote = [], []
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.on("requestfailed", lambda r: errors.append(f"failed: {r.url}"))
+            page.on("request", lambda r: remote.append(r.url) if not r.url.startswith(("file:", "data:", "blob:"))
+                    else None)
+            page.goto(page_file.as_uri(), wait_until="load")
+            page.wait_for_selector(".js-plotly-plot", state="attached", timeout=20_000)
+            size = page.evaluate("(() => { const r = document.querySelector('.js-plotly-plot').getBoundingClientRect();"
+                                 " return [r.width, r.height]; })()")
+            drawn = page.evaluate("(() => { const d = document.querySelector('.js-plotly-plot');"
+                                  " return [d.data.length, !!(d._fullLayout.scene && d._fullLayout.scene._scene),"
+                                  " d.querySelectorAll('canvas').length]; })()")
+            assert errors == [], errors
+            assert remote == [], f"the page asked the network for {remote}"
+            assert size[0] > 100 and size[1] > 100, size
+            assert drawn[0] == 4 and drawn[1] and drawn[2] >= 1, drawn
+        finally:
+            browser.close()

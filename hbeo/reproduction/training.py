@@ -8,6 +8,8 @@ May import: foundation, data, render, model, and the other reproduction modules 
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -29,6 +31,10 @@ def curves_figure(run, model_file):
     ax[1].set(xlabel="epoch", ylabel="validation accuracy")
     ax[2].plot(log.epoch, log.val_pose_median_deg)
     ax[2].set(xlabel="epoch", ylabel="median pose error (°)")
+    ax[0].set_title("loss (lower is better)", fontsize=9)
+    ax[1].set_title("class accuracy (higher is better)", fontsize=9)
+    ax[2].set_title("pose error (lower is better)", fontsize=9)
+    fig.suptitle(f"HBEONet training, {Path(str(model_file)).name}, per epoch (validation: held-out training objects)")
     fig.tight_layout()
     return fig
 
@@ -61,7 +67,8 @@ def predictions_figure(model, ds, view_sampler, n: int = 5, seed: int = 1):
             p = model.predict(depth, model.intrinsics)
             err = geodesic_deg(p.rotation[0], Rs[0])
             panels.append((depth, p.grids[0], record_grid(rec), f"{rec.cls} -> {p.class_names[0]}, {err:.0f}°"))
-    fig, ax = plt.subplots(len(panels), 3, figsize=(6, 2 * len(panels)))
+    fig, ax = plt.subplots(len(panels), 3, figsize=(6, 2 * len(panels) + 0.5))
+    fig.suptitle("Test views: depth image (true -> predicted class, pose error), completion, true grid", fontsize=9)
     for row, (d, g, truth, title) in zip(np.atleast_2d(ax), panels):
         figures.show_depth(row[0], d, title)
         for a, grid, name in ((row[1], g, "completed"), (row[2], truth, "truth")):
