@@ -106,7 +106,9 @@ def test_evaluate_baselines_write_the_same_keys(trained, tmp_path, method, pose,
     assert (m["method"], m["pose"], m["given_class"]) == (method, pose, given) and m["precision"] is None
     assert m["n_queries"] == 10 and set(m["completion"]) == set(h["completion"])
     if pose == "known":
-        assert m["pose_error_deg"]["median"] < 1e-3                   # the rotation was given
+        # the rotation was given: only the float32 rounding of the stored rotation remains, which the arccos of
+        # the geodesic angle magnifies to a few thousandths of a degree (a wrong pose would be degrees off)
+        assert m["pose_error_deg"]["median"] < 0.05
     if given:
         assert m["accuracy"] == 1.0
 
