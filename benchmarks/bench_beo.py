@@ -28,7 +28,7 @@ from hbeo import config
 from hbeo.data import datasets
 from hbeo import conventions as C
 from hbeo.baselines.beo import BEO, DEFAULT_SO3_GRID, grid_spacing, so3_grid
-from hbeo.reproduction.evaluate import symmetric_pose_error
+from hbeo.evaluation.evaluate import symmetric_pose_error
 from hbeo.data.gridset import record_grid
 from hbeo.render.poses import ViewSampler
 from hbeo.render.renderer import Renderer, record_mesh

@@ -25,7 +25,7 @@ from hbeo.data import datasets
 from hbeo.data import gridset
 from hbeo.render import poses
 from hbeo.render import renderer as render
-from hbeo.reproduction.evaluate import symmetric_pose_error
+from hbeo.evaluation.evaluate import symmetric_pose_error
 from hbeo.baselines.icp import ICPBaseline
 from hbeo.rotations import geodesic_deg
 

@@ -60,7 +60,7 @@ def _run_dir(work: Path, objects: int, views: int) -> Path:
 
 def prepare(work: Path, objects: int, views: int) -> Path:
     """Grids, subspace and the rendered training set of the bench run (once; reused after)."""
-    from hbeo.model.pipeline import ensure_render
+    from hbeo.run import ensure_render
     run = _run_dir(work, objects, views)
     ensure_render("procedural", _profile(objects, views), run, "train")
     return run

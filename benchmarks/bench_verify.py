@@ -41,7 +41,7 @@ def main() -> None:
     from hbeo.data.gridset import record_grid
     from hbeo.model.inference import HBEO
     from hbeo.model.verify import Verifier, VerifyConfig, align_translation, surface_points
-    from hbeo.render.datasets import split_objects
+    from hbeo.render.torch_datasets import split_objects
     from hbeo.render.views import ObjectViews, RenderSettings
     from hbeo.subspace.metrics import iou
     m = HBEO.load(args.model)

@@ -184,7 +184,7 @@ def _loss_weights(text: str):
 def cmd_train(args) -> int:
     from hbeo import config
     from hbeo.model.fit import ViewOptions, fit_model
-    from hbeo.model.pipeline import ensure_render, ensure_subspace
+    from hbeo.run import ensure_render, ensure_subspace
     from hbeo.render.views import RenderSettings
     from hbeo.model import distributed
     prof = config.get_profile(args.profile)
@@ -250,7 +250,7 @@ def _add_verify(p) -> None:
 def cmd_predict(args) -> int:
     from hbeo.errors import DataError
     from hbeo.storage import atomic_file, check_outputs
-    from hbeo.render.depthio import parse_intrinsics, read_depth, read_mask
+    from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.model.inference import HBEO
     # outputs first: a bad --out/--mesh, or one naming an input, fails before any work
     check_outputs({"--out": args.out, "--mesh": args.mesh},
@@ -292,7 +292,7 @@ def cmd_predict(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from hbeo.reproduction.evaluate import evaluate_model, split_records
+    from hbeo.evaluation.evaluate import evaluate_model, split_records
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.model.inference import HBEO
     from hbeo.storage import check_outputs
@@ -320,7 +320,7 @@ def cmd_evaluate(args) -> int:
     metrics["model"] = str(args.model)
     _write_json(args.out, metrics)
     if args.split == "val":
-        from hbeo.reproduction.protocol import record_validation
+        from hbeo.evaluation.protocol import record_validation
         record_validation(RunDir(Path(args.model).parent), args.model, model, metrics)
     status = _report_failures(RunDir(Path(args.model).parent), "evaluate", metrics["failures"],
                               metrics["n_objects"] + len(metrics["failures"]), args.strict, [args.split])
@@ -331,25 +331,25 @@ def cmd_evaluate(args) -> int:
 
 def cmd_convert_model(args) -> int:
     from hbeo.model.modelfile import convert_legacy
-    from hbeo.baselines.convert import same_predictions
+    from hbeo.baselines.conversion_check import same_predictions
     kind, path = convert_legacy(args.old, args.new, check=same_predictions)
     print(f"{args.old} -> {path}: {kind} model in the current format (weights and predictions checked identical)")
     return 0
 
 
 def cmd_reproduce(args) -> int:
-    from hbeo.reproduction.notebooks import run_notebooks
+    from hbeo.report.notebooks import run_notebooks
     run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out, only=args.only, fresh=args.fresh)
     return 0
 
 
 def cmd_report(args) -> int:
     if args.model_table:
-        from hbeo.reproduction.model_table import write_model_table
+        from hbeo.report.model_table import write_model_table
         path = write_model_table(args.run, args.readme)
         print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
         return 0
-    from hbeo.reproduction.report import write_reproduction, write_summary
+    from hbeo.report.reproduction_md import write_reproduction, write_summary
     path = write_reproduction(args.run, args.out)
     print(f"wrote {path}" + (f" and the summary block of {write_summary(args.run, args.readme)}" if args.readme else ""))
     return 0

@@ -73,9 +73,9 @@ class Profile:
     #: Epochs of each option compared in notebook 04 (None: ``epochs``); every variant, the run's recipe
     #: included, is trained that long, so the comparison is fair (and short).
     option_epochs: int | None = None
-    #: Which of notebook 04's variants to train (``hbeo.reproduction.training.OPTIONS``).
+    #: Which of notebook 04's variants to train (``hbeo.lessons.training.OPTIONS``).
     options: tuple[str, ...] = ("paper", "6d", "6d_dist", "recipe")
-    #: The paired test protocol (:mod:`hbeo.reproduction.protocol`): query views per test object, the
+    #: The paired test protocol (:mod:`hbeo.evaluation.protocol`): query views per test object, the
     #: same (object, view) pairs for every method (the searches of ``beo_3dof_test_per_class`` and
     #: ``icp_test_per_class`` score the first view only); ICP's test objects per class (None: all).
     eval_views: int = 1

@@ -169,7 +169,7 @@ class RunDir:
     @property
     def model_rows(self) -> Path:
         """``models.json``: the rows of the README's model table (label, validation and test
-        metrics files of this folder, chosen on validation or not; :mod:`hbeo.reproduction.model_table`)."""
+        metrics files of this folder, chosen on validation or not; :mod:`hbeo.report.model_table`)."""
         return self.path / "models.json"
 
     @property

@@ -42,8 +42,8 @@ $PY -m hbeo evaluate --model $R/model.hbeo --method beo --pose known --dataset $
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'
 import json
-from hbeo.reproduction.figures import save
-from hbeo.reproduction.paper_figures import confusion_grid
+from hbeo.report.figures import save
+from hbeo.report.paper_figures import confusion_grid
 R = "results/cpu-modelnet10-vox30"
 ev = [json.load(open(f"{R}/eval_test-ref-rolls4.json")), json.load(open(f"{R}/eval_test-ref-verify.json"))]
 save(confusion_grid(ev, "reference model, test split (907 objects x 3 views, seed 0), 4 rolls"), R, "16_confusion_test")

@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     from hbeo import config
     from hbeo.model.inference import HBEO
     from hbeo.model.verify import VerifyConfig
-    from hbeo.reproduction.sweep import sweep_rows, verify_sweep
+    from hbeo.evaluation.sweep import sweep_rows, verify_sweep
     from hbeo.rundir import RunDir
     from hbeo.storage import append_csv, sha256_file
     model = HBEO.load(args.model)

@@ -116,21 +116,21 @@ def ci_grids(_ci):
 @pytest.fixture(scope="session")
 def ci_subspace(_ci, ci_grids):
     """The ci run's ObjectSubspace, fitted on ``ci_grids["train"]`` and saved in the run."""
-    from hbeo.model.pipeline import ensure_subspace
+    from hbeo.run import ensure_subspace
     return _ci.build(lambda: ensure_subspace(*CI, _ci.run, progress=False))
 
 
 @pytest.fixture(scope="session")
 def ci_render(_ci, ci_subspace):
     """The Manifest of the ci run's rendered training set (rendered in spawned workers)."""
-    from hbeo.model.pipeline import ensure_render
+    from hbeo.run import ensure_render
     return _ci.build(lambda: ensure_render(*CI, _ci.run, "train", progress=False))
 
 
 @pytest.fixture(scope="session")
 def ci_render_test(_ci, ci_subspace):
     """The Manifest of the ci run's rendered test set (``train`` does not render it)."""
-    from hbeo.model.pipeline import ensure_render
+    from hbeo.run import ensure_render
     return _ci.build(lambda: ensure_render(*CI, _ci.run, "test", progress=False))
 
 

@@ -15,7 +15,7 @@ from hbeo.model.augment import RollAugment
 from hbeo.model.distributed import weights_sha256
 from hbeo.model.fit import HBEONetTask
 from hbeo.model.network import LossWeights, NetConfig
-from hbeo.model.train import TrainConfig, train
+from hbeo.model.loop import TrainConfig, train
 from hbeo.rotations import matrix_to_axis_angle, uniform_so3
 
 CFG = NetConfig(image_size=(16, 16), n_classes=3, n_coeffs=4, conv_channels=(4, 8, 8, 8), fc=(16, 16, 16),

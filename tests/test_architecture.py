@@ -9,11 +9,17 @@ import pytest
 
 PKG = Path(__file__).resolve().parent.parent / "hbeo"
 NOTEBOOKS = PKG.parent / "notebooks"
-#: The pipeline order; a module may import its own layer and those before it. The foundation modules
-#: (conventions, config, errors, storage, rotations, rundir) come first; the CLI is on top.
-LAYERS = ["foundation", "data", "subspace", "render", "model", "baselines", "reproduction", "cli"]
-FOUNDATION = {"__init__", "conventions", "config", "errors", "storage", "rotations", "rundir"}
+#: The pipeline order, bottom to top; a module may import its own layer and those below it. A layer is a
+#: subpackage folder (its modules are whatever the folder holds) or one top-level module named here
+#: (``run``, ``cli``); every other top-level module is the foundation. Nothing lists files by hand.
+LAYERS = ["foundation", "data", "subspace", "render", "model", "baselines", "run", "evaluation", "report",
+          "lessons", "cli"]
+TOP_LEVEL = {"run": "run", "cli": "cli", "__main__": "cli"}
 MAX_LINES = 520
+
+
+def _subpackages() -> list[str]:
+    return sorted(p.parent.name for p in PKG.glob("*/__init__.py"))
 
 
 def _layer(module: str) -> str:
@@ -23,12 +29,10 @@ def _layer(module: str) -> str:
     if len(parts) == 1:
         return "foundation"
     head = parts[1]
-    if head in FOUNDATION:
-        return "foundation"
-    if head in ("cli", "__main__"):
-        return "cli"
-    assert head in LAYERS, f"hbeo.{head} belongs to no layer: add it to a subpackage or to FOUNDATION"
-    return head
+    if (PKG / head).is_dir():
+        assert head in LAYERS, f"hbeo/{head}/ belongs to no layer: place it in LAYERS"
+        return head
+    return TOP_LEVEL.get(head, "foundation")
 
 
 def _modules():
@@ -65,6 +69,14 @@ def _imports(path: Path, name: str):
 def test_the_layers_cover_every_module():
     for _, name in _modules():
         _layer(name)
+    assert set(_subpackages()) <= set(LAYERS), "a subpackage without a place in LAYERS"
+
+
+def test_evaluation_never_imports_a_presentation_layer():
+    """The statistics compute, the report presents: the code version that keys cached evaluations leaves
+    out exactly the layers above the evaluation, so none of them may be imported below it."""
+    from hbeo.evaluation.protocol import PRESENTATION_LAYERS
+    assert set(PRESENTATION_LAYERS) == set(LAYERS[LAYERS.index("evaluation") + 1:-1])
 
 
 def test_imports_go_one_way_along_the_pipeline():
@@ -81,9 +93,9 @@ def test_imports_go_one_way_along_the_pipeline():
 def test_the_direction_check_can_fail(tmp_path):
     """The checker itself sees a function-level import of a later layer."""
     p = tmp_path / "x.py"
-    p.write_text("def f():\n    from hbeo.reproduction import tables\n")
+    p.write_text("def f():\n    from hbeo.report import tables\n")
     found = list(_imports(p, "hbeo.data.x"))
-    assert found == [(2, "hbeo.reproduction.tables")]
+    assert found == [(2, "hbeo.report.tables")]
     assert LAYERS.index(_layer(found[0][1])) > LAYERS.index(_layer("hbeo.data.x"))
 
 
@@ -103,7 +115,7 @@ def test_every_module_has_a_docstring_and_stays_small():
 
 
 def test_subpackages_say_what_they_may_import():
-    for sub in LAYERS[1:-1]:
+    for sub in _subpackages():
         doc = ast.get_docstring(ast.parse((PKG / sub / "__init__.py").read_text())) or ""
         assert "May import" in doc, f"hbeo/{sub}/__init__.py must say what it may import"
 

@@ -1,4 +1,4 @@
-"""The run's book (`make book`, hbeo.reproduction.book): pages for every executed notebook, the index with the
+"""The run's book (`make book`, hbeo.report.book): pages for every executed notebook, the index with the
 manifest, tables and figures, nothing loaded from the network, and a real browser shows it without errors."""
 import base64
 import io
@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from hbeo.errors import DataError
-from hbeo.reproduction import book
+from hbeo.report import book
 
 CHROMIUM = next((p for p in (shutil.which("chromium"), "/usr/bin/chromium") if p and Path(p).is_file()), None)
 
@@ -151,13 +151,13 @@ def test_chromium_shows_the_book_without_errors(run_folder):
 
 @pytest.mark.slow
 def test_chromium_shows_a_3d_view_offline(tmp_path):
-    """A notebook page with a rotatable 3-D view (hbeo.reproduction.viewer: plotly.js embedded) passes the book's
+    """A notebook page with a rotatable 3-D view (hbeo.lessons.viewer: plotly.js embedded) passes the book's
     offline check, and headless Chromium draws the plot from disk: no console error, no request to the network,
     the plotly graph rendered with a non-zero size and its 3-D scene's WebGL canvas."""
     if CHROMIUM is None:
         pytest.skip("no chromium binary (scripts/setup.sh installs Debian's chromium)")
     from playwright.sync_api import sync_playwright
-    from hbeo.reproduction import viewer
+    from hbeo.lessons import viewer
     grid = np.zeros((30, 30, 30), bool)
     grid[6:22, 8:22, 3:11] = True
     grid[6:22, 19:22, 11:26] = True

@@ -240,8 +240,8 @@ def test_verify_sweep_scores_every_candidate_on_the_same_queries_and_refuses_the
     from hbeo.data import datasets
     from hbeo.model.inference import HBEO
     from hbeo.model.verify import VerifyConfig
-    from hbeo.reproduction.evaluate import evaluate_model
-    from hbeo.reproduction.sweep import sweep_rows, verify_sweep
+    from hbeo.evaluation.evaluate import evaluate_model
+    from hbeo.evaluation.sweep import sweep_rows, verify_sweep
     model = HBEO.load(trained / "model.hbeo")
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
     one = VerifyConfig(classes=1, rotations=2, min_agreement=0)

@@ -73,7 +73,7 @@ def test_torchrun_killed_run_resumes_and_continues_the_schedule(run_with_renders
     os.killpg(p.pid, signal.SIGKILL)                          # torchrun and both ranks, at once
     p.wait()
     assert not run.model.exists()
-    from hbeo.model.train import load_checkpoint
+    from hbeo.model.loop import load_checkpoint
     step_at_kill = load_checkpoint(ck)["step"]
     out = _torchrun(run.path, cache, "--checkpoint-every", "5")
     assert out.returncode == 0, out.stderr[-3000:]

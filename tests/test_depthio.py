@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hbeo.render.depthio import parse_intrinsics, read_depth, read_mask
+from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
 from hbeo.errors import DataError
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hbeo.reproduction.evaluate import summarize, symmetric_pose_error
+from hbeo.evaluation.evaluate import summarize, symmetric_pose_error
 from hbeo.rotations import uniform_so3
 
 
@@ -42,7 +42,7 @@ def test_evaluation_reads_its_cache_only_for_the_same_request(tmp_path, monkeypa
     import pytest
     from hbeo.data import datasets
     from hbeo.errors import DataError
-    from hbeo.reproduction import protocol
+    from hbeo.evaluation import protocol
     from hbeo.rundir import RunDir
     run = RunDir(tmp_path).create()
     run.model.write_bytes(b"not a model")

@@ -45,7 +45,7 @@ from hbeo.data.voxel import voxelize
 from hbeo.errors import HBEOError
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, NetConfig
-from hbeo.render.depthio import parse_intrinsics, read_depth
+from hbeo.model.depthfile import parse_intrinsics, read_depth
 from hbeo.subspace.basis import ObjectSubspace
 
 K = Intrinsics.kinect(32, 24)

@@ -1,8 +1,8 @@
-"""Bootstrap intervals over objects (hbeo.reproduction.intervals)."""
+"""Bootstrap intervals over objects (hbeo.evaluation.intervals)."""
 import numpy as np
 import pytest
 
-from hbeo.reproduction.intervals import cluster_bootstrap, interval
+from hbeo.evaluation.intervals import cluster_bootstrap, interval
 
 
 def test_interval_covers_the_truth_and_narrows_with_more_objects():

@@ -1,4 +1,4 @@
-"""The README's model table (hbeo.reproduction.model_table): generated from committed metrics files
+"""The README's model table (hbeo.report.model_table): generated from committed metrics files
 only, validation and test side by side; the committed README carries exactly the generated block."""
 import json
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from hbeo.errors import DataError
-from hbeo.reproduction.model_table import (BEGIN, END, TARGETS_BEGIN, TARGETS_END, model_table, replace_block,
+from hbeo.report.model_table import (BEGIN, END, TARGETS_BEGIN, TARGETS_END, model_table, replace_block,
                                            targets_table, write_model_table)
 from hbeo.rundir import RunDir
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hbeo.reproduction import paired
+from hbeo.evaluation import paired
 
 CLS = ["chair", "desk", "sofa"]
 

@@ -13,7 +13,8 @@ import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
 from hbeo.conventions import CLASSES  # noqa: E402
-from hbeo.reproduction import figures, paper_figures as pf, tables  # noqa: E402
+from hbeo.evaluation import method  # noqa: E402
+from hbeo.report import figures, paper_figures as pf, tables  # noqa: E402
 from hbeo.subspace.metrics import edt_error, iou, naive_error  # noqa: E402
 
 KEYS = [("hbeo", "3dof"), ("beo", "known"), ("beo", "1dof"), ("beo", "3dof"), ("icp", "3dof"), ("voxcnn", "known"),
@@ -75,10 +76,10 @@ def test_metrics_and_table_rows_find_their_colour(evals):
     assert figures.method_key(ver) == figures.HBEO_VERIFY
     assert figures.method_key({**hbeo, "verify": {"tau": 1}}) == figures.HBEO_VERIFY     # verify on the hbeo key
     assert figures.method_color(hbeo) == figures.METHOD_COLORS[("hbeo", "3dof")]
-    for key, name in tables.LABELS.items():                         # every table label maps back to its key
+    for key, name in method.LABELS.items():                         # every table label maps back to its key
         want = {"class_mean": figures.CLASS_MEAN, "hbeo-verify": figures.HBEO_VERIFY}.get(key[0], key)
         assert pf.row_key(name) == want, name
-    assert pf.row_key(tables.label(ver)) == figures.HBEO_VERIFY
+    assert pf.row_key(method.label(ver)) == figures.HBEO_VERIFY
     assert pf.row_key("3dshapenets (known), reported only") == ("3dshapenets", "known")
     assert pf.row_key("BEO", "1dof") == ("beo", "1dof")              # Table I's reported rows
 
@@ -99,7 +100,7 @@ def _figures(evals):
     cs = tables.completion_summary(evals)
     t2 = tables.table2(evals, tables.paper_table("table2_runtime"))
     t1 = pd.DataFrame([{"source": "reported", "setting": "known", "method": "BEO", **{c: 50.0 for c in CLASSES}},
-                       {"source": "reproduced", "setting": "known", "method": tables.label(evals[2]),
+                       {"source": "reproduced", "setting": "known", "method": method.label(evals[2]),
                         **{c: 70.0 for c in CLASSES}}])
     hw = {"cpu": "Test CPU", "cores": 2, "gpu": None, "torch_threads": 2}
     return {"pose": pf.pose_errors([evals[0], evals[1], evals[3]]), "completion": pf.completion_bars(cs, evals),
@@ -189,7 +190,7 @@ def test_table2_gives_median_and_iqr_from_per_query_times(evals):
     b = t2.loc["BEO (known pose)"]
     assert (b["median (s)"], b["p25 (s)"], b["p75 (s)"]) == pytest.approx((0.025, 0.0175, 0.0325))
     assert b["paper: mean (s)"] == pytest.approx(1.13)
-    assert np.isnan(t2.loc[tables.label(evals[1]), "paper: mean (s)"])     # HBEO + verify: not the paper's method
+    assert np.isnan(t2.loc[method.label(evals[1]), "paper: mean (s)"])     # HBEO + verify: not the paper's method
     assert t2.loc["3dshapenets (known), reported only", "paper: mean (s)"] == pytest.approx(3.57)
     assert t2.loc["beo (3dof), reported only", "paper: mean (s)"] == pytest.approx(3529.88)
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from hbeo.reproduction import notebooks, provenance, report
+from hbeo.report import notebooks, provenance, reproduction_md as report
 from hbeo.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]

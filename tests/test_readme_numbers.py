@@ -1,6 +1,6 @@
 """Every figure in the README and in paper/REPRODUCTION.md comes from a committed file.
 
-- ``paper/REPRODUCTION.md`` is exactly what :func:`hbeo.reproduction.report.reproduction_text` writes from the
+- ``paper/REPRODUCTION.md`` is exactly what :func:`hbeo.report.reproduction_md.reproduction_text` writes from the
   committed reference run, and every file it links to is committed;
 - the README's generated blocks (summary, subspace, model and targets tables) are exactly what the run's
   files give (the model and targets tables: ``tests/test_model_table.py``);
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from hbeo.reproduction import report
-from hbeo.reproduction.model_table import BEGIN, END
+from hbeo.report import reproduction_md as report
+from hbeo.report.model_table import BEGIN, END
 from hbeo.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,9 +47,9 @@ def test_settings_quoted_in_the_readme_are_the_code_s():
     import math
     from hbeo import conventions as C
     from hbeo.data.datasets import VAL_FRACTION
-    from hbeo.model.pipeline import VARIANCE
+    from hbeo.run import VARIANCE
     from hbeo.model.verify import VerifyConfig
-    from hbeo.reproduction.paired import LEVEL
+    from hbeo.evaluation.paired import LEVEL
     K = C.Intrinsics.kinect(640, 480)
     assert round(math.degrees(2 * math.atan(K.width / 2 / K.fx))) == 63
     assert VARIANCE == 0.6 and VAL_FRACTION == 0.1 and LEVEL == 0.95 and VerifyConfig().min_agreement == 0.45

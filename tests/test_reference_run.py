@@ -29,7 +29,7 @@ def committed():
 def test_the_committed_model_reproduces_its_committed_evaluation(vox30_file, committed, monkeypatch):
     from hbeo.data.datasets import get_dataset
     from hbeo.model.inference import HBEO
-    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.evaluation.evaluate import evaluate_model
 
     monkeypatch.setenv("HBEO_VOX30", str(vox30_file))
     model = HBEO.load(RUN.model)

@@ -19,7 +19,7 @@ from hbeo.data import datasets
 from hbeo.data.datasets import ObjectRecord
 from hbeo.errors import DataError
 from hbeo.data.gridset import build_gridset, record_grid
-from hbeo.render.datasets import DepthShards, ShardSampler, StreamingDepth, load_shard, split_by_object
+from hbeo.render.torch_datasets import DepthShards, ShardSampler, StreamingDepth, load_shard, split_by_object
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.render.views import RenderSettings
 from hbeo.subspace.basis import ObjectSubspace

@@ -12,7 +12,7 @@ import pytest
 
 import resume_job as job
 from hbeo.model.distributed import weights_sha256
-from hbeo.model.train import load_checkpoint, train
+from hbeo.model.loop import load_checkpoint, train
 from hbeo.rundir import CHECKPOINT, TRAIN_LOG
 
 JOB = Path(__file__).with_name("resume_job.py")

@@ -14,7 +14,7 @@ from hbeo.data.gridset import build_gridset
 from hbeo.data.meshio import check_mesh
 from hbeo.data.voxel import voxelize
 from hbeo.errors import DataError
-from hbeo.render.datasets import DepthShards
+from hbeo.render.torch_datasets import DepthShards
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.render.views import RenderSettings
 from hbeo.rundir import RunDir

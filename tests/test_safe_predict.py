@@ -19,7 +19,7 @@ from hbeo.errors import DataError
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, NetConfig
 from hbeo.model.preprocess import to_model_view
-from hbeo.render.depthio import parse_intrinsics, read_depth
+from hbeo.model.depthfile import parse_intrinsics, read_depth
 from hbeo.subspace.basis import ObjectSubspace
 
 K_MODEL = Intrinsics.kinect(32, 24)

@@ -5,7 +5,7 @@ import torch
 
 from hbeo import config
 from hbeo.model.fit import ViewOptions, training_data
-from hbeo.model.train import TrainConfig, data_loader
+from hbeo.model.loop import TrainConfig, data_loader
 from hbeo.render.views import RenderSettings
 
 
@@ -82,7 +82,7 @@ class _ClassSortedShards:
 
 
 def test_shard_blocks_read_each_shard_once_and_mix_classes():
-    from hbeo.render.datasets import ShardSampler
+    from hbeo.render.torch_datasets import ShardSampler
     data, labels = _ClassSortedShards(), np.arange(1000) // 100
     idx = np.arange(0, 1000, 2)                           # a subset, as the training split is
     for mix in (1, 4, 8):

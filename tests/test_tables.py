@@ -1,14 +1,14 @@
-"""Tables from evaluation metrics (synthetic metrics from hbeo.reproduction.evaluate.summarize)."""
+"""Tables from evaluation metrics (synthetic metrics from hbeo.evaluation.evaluate.summarize)."""
 import copy
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from hbeo.reproduction import protocol
-from hbeo.reproduction import tables
+from hbeo.evaluation import protocol
+from hbeo.report import tables
 from hbeo.conventions import CLASSES
-from hbeo.reproduction.evaluate import summarize
+from hbeo.evaluation.evaluate import summarize
 from hbeo.rotations import uniform_so3
 
 
@@ -103,7 +103,7 @@ def test_worse_than_chance_names_the_evaluations(evals):
 
 
 def test_tables_written_into_the_run_feed_the_report(evals, tmp_path):
-    from hbeo.reproduction.report import write_reproduction
+    from hbeo.report.reproduction_md import write_reproduction
     from hbeo.rundir import RunDir
     run = RunDir(tmp_path / "run").create()
     t1 = tables.table1(evals, tables.paper_table("table1_classification"))

@@ -1,4 +1,4 @@
-"""The training loop (hbeo.model.train) with HBEONet's task: learning, exact resume, max_steps,
+"""The training loop (hbeo.model.loop) with HBEONet's task: learning, exact resume, max_steps,
 refusing a checkpoint made with other settings, checkpoints that load with weights_only."""
 import numpy as np
 import pandas as pd
@@ -8,7 +8,7 @@ import torch
 from hbeo.errors import DataError
 from hbeo.model.fit import HBEONetTask
 from hbeo.model.network import LossWeights, NetConfig
-from hbeo.model.train import TrainConfig, load_checkpoint, lr_at, train
+from hbeo.model.loop import TrainConfig, load_checkpoint, lr_at, train
 from hbeo.rotations import uniform_so3
 from hbeo.rundir import CHECKPOINT, TRAIN_LOG as LOG
 from resume_job import Blobs

@@ -121,7 +121,7 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
 def test_evaluate_with_verify_reports_its_settings_and_refuses_baselines(model_and_view):
     from hbeo import config
     from hbeo.data import datasets
-    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.evaluation.evaluate import evaluate_model
     model = model_and_view[0]
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
     plain = evaluate_model(model, ds, per_class=1, progress=False)

@@ -1,4 +1,4 @@
-"""The notebooks' rotatable 3-D views (hbeo.reproduction.viewer): voxel faces, depth points in the object frame,
+"""The notebooks' rotatable 3-D views (hbeo.lessons.viewer): voxel faces, depth points in the object frame,
 the plotly figure, its offline HTML and the static figure beside it."""
 import re
 from types import SimpleNamespace
@@ -8,7 +8,8 @@ import pytest
 from scipy import ndimage
 
 from hbeo import conventions as C
-from hbeo.reproduction import book, viewer
+from hbeo.report import book
+from hbeo.lessons import viewer
 from hbeo.rotations import yaw_elevation_to_matrix
 from hbeo.rundir import RunDir
 

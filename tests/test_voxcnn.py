@@ -8,12 +8,12 @@ import torch
 from hbeo import config
 from hbeo.baselines import voxcnn as V
 from hbeo.errors import DataError
-from hbeo.model.train import TrainConfig, train
+from hbeo.model.loop import TrainConfig, train
 from hbeo.rundir import CHECKPOINT, RunDir
 from hbeo.data.gridset import GridSet
 from hbeo.subspace.metrics import iou
 from hbeo.subspace.partial import depth_to_partial
-from hbeo.render.datasets import load_shard
+from hbeo.render.torch_datasets import load_shard
 
 TEST_EPOCHS = config.get_profile("ci").voxcnn_epochs      #: the ci profile as is (3 epochs, seconds each)
 

@@ -2,7 +2,7 @@
 
 Owns BEO with known pose, 1-DOF and 3-DOF search (:mod:`~hbeo.baselines.beo`), the ICP pose
 baseline (:mod:`~hbeo.baselines.icp`), the end-to-end 3-D CNN in the role of 3D ShapeNets
-(:mod:`~hbeo.baselines.voxcnn`, trained by :mod:`hbeo.model.train`), and the registry of methods and
+(:mod:`~hbeo.baselines.voxcnn`, trained by :mod:`hbeo.model.loop`), and the registry of methods and
 pose settings (:mod:`~hbeo.baselines.methods`). A new baseline goes here: a class with
 ``fit``/``save``/``load``/``predict_view`` registered in :mod:`~hbeo.baselines.methods`.
 

@@ -1,4 +1,4 @@
-"""The methods compared in the paper, behind one interface for :func:`hbeo.reproduction.evaluate.evaluate_model`.
+"""The methods compared in the paper, behind one interface for :func:`hbeo.evaluation.evaluate.evaluate_model`.
 
 =========  ==========================  =======================================================
 method     pose settings               what it is

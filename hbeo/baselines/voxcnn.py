@@ -15,7 +15,7 @@ resolution; ``skips=False`` gives the plain encoder-bottleneck-decoder, which at
 learns to predict an empty grid). Loss: cross-entropy + ``occupancy_weight`` x binary
 cross-entropy over all voxels (``pos_weight`` on filled ones).
 
-Training: :class:`VoxCNNTask` in the project's loop (:func:`hbeo.model.train.train`), sizes from
+Training: :class:`VoxCNNTask` in the project's loop (:func:`hbeo.model.loop.train`), sizes from
 the profile's ``voxcnn_*`` fields (:class:`hbeo.config.Profile`).
 
 Files in a run folder (:class:`hbeo.rundir.RunDir`)
@@ -43,8 +43,8 @@ from tqdm.auto import tqdm
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.errors import DataError
-from hbeo.model.train import TrainConfig, ValidationMeans, train, training_history
-from hbeo.render.datasets import load_shard, split_by_object
+from hbeo.model.loop import TrainConfig, ValidationMeans, train, training_history
+from hbeo.render.torch_datasets import load_shard, split_by_object
 from hbeo.render.renderset import Manifest
 from hbeo.rundir import RunDir
 from hbeo.storage import pack_bits, sha256_file, unpack_bits, write_npz
@@ -242,7 +242,7 @@ class PartialSet(torch.utils.data.Dataset):
 
     def split(self, val_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Indices (train, validation) into this set, split by object
-        (:func:`hbeo.render.datasets.split_by_object` on the rendered set)."""
+        (:func:`hbeo.render.torch_datasets.split_by_object` on the rendered set)."""
         tr, va = split_by_object(self.manifest, val_fraction, seed)
         idx = np.arange(len(self), dtype=np.int64)
         return idx[np.isin(self.image, tr)], idx[np.isin(self.image, va)]
@@ -274,7 +274,7 @@ def _object_grids(run: RunDir, m: Manifest) -> np.ndarray:
     from hbeo.data.gridset import GridSet
     path = run.grids("train")
     if not path.exists():
-        raise DataError(path, "no training grids in the run folder (notebook 01, or hbeo.model.pipeline.ensure_render, "
+        raise DataError(path, "no training grids in the run folder (notebook 01, or hbeo.run.ensure_render, "
                               "writes them)")
     gs = GridSet.load(path)
     where = {(gs.classes[int(lab)], str(i)): n for n, (lab, i) in enumerate(zip(gs.labels, gs.ids))}
@@ -357,7 +357,7 @@ def partial_training_set(run, views_per_object: int | None = None, progress: boo
 
 @dataclass
 class VoxCNNTask:
-    """VoxCNN for :func:`hbeo.model.train.train`: :func:`voxcnn_loss` on :class:`PartialSet` batches
+    """VoxCNN for :func:`hbeo.model.loop.train`: :func:`voxcnn_loss` on :class:`PartialSet` batches
     (``x``, ``label``, ``target``). Validation: mean loss parts, class accuracy and mean completion
     IoU (occupancy probability >= 0.5; an empty target and prediction count as 1)."""
 
@@ -402,7 +402,7 @@ def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progres
     :class:`VoxCNNBaseline`. ``epochs`` overrides the profile's; ``max_steps`` ends training after
     that many optimizer steps; ``stop_after_epoch`` (< epochs) ends early without writing the model
     file (to simulate an interruption); ``threads``: torch threads on a CPU (0 = half the cores,
-    None = torch's setting; see :func:`hbeo.model.train.cpu_threads`)."""
+    None = torch's setting; see :func:`hbeo.model.loop.cpu_threads`)."""
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     data = partial_training_set(run, prof.voxcnn_views_per_object, progress=progress)

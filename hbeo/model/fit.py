@@ -3,7 +3,7 @@
 :func:`fit_model` checks that the run's rendered training set (``RunDir.renders("train")``,
 notebook 03) was made with the run's subspace (``RunDir.subspace``, notebook 02), gets the
 training and validation data from :func:`training_data`, trains HBEONet through the project's
-loop (:func:`hbeo.model.train.train` with :class:`HBEONetTask`) and writes the model file
+loop (:func:`hbeo.model.loop.train` with :class:`HBEONetTask`) and writes the model file
 (``RunDir.model_file``).
 
 :func:`training_data` is the one place training images become datasets, from one of three
@@ -37,8 +37,8 @@ from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
 from hbeo.model.preprocess import to_model_view
 from hbeo.model import distributed
-from hbeo.model.train import TrainConfig, ValidationMeans, train
-from hbeo.render.datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
+from hbeo.model.loop import TrainConfig, ValidationMeans, train
+from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
                                   split_objects)
 from hbeo.render.renderset import Manifest, subspace_info
 from hbeo.render.views import RenderSettings
@@ -76,7 +76,7 @@ class ViewOptions:
 
 @dataclass
 class HBEONetTask:
-    """HBEONet for :func:`hbeo.model.train.train`: the paper's loss (:func:`hbeo.model.network.hbeo_loss`
+    """HBEONet for :func:`hbeo.model.loop.train`: the paper's loss (:func:`hbeo.model.network.hbeo_loss`
     with ``weights``) on batches of :class:`ViewArrays` items (``depth`` (B, 1, H, W) metres,
     ``label`` (B,), ``rotation`` (B, 3, 3), ``axis_angle`` (B, 3), ``coeffs`` (B, k) standardized).
     Validation: mean loss parts, accuracy and median geodesic pose error (degrees).
@@ -188,7 +188,7 @@ def model_item(raw: dict, K, opts: ViewOptions, coeff_mean, coeff_std) -> dict:
 class ModelView(Dataset):
     """A map-style view dataset (e.g. a :class:`DepthShards` subset) read lazily and brought into
     the model's input view item by item (:func:`model_item`), rolled if ``roll``; ``order(seed,
-    epoch)`` gives each epoch's sampler (:func:`hbeo.model.train.data_loader`)."""
+    epoch)`` gives each epoch's sampler (:func:`hbeo.model.loop.data_loader`)."""
 
     def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False, order=None):
         self.base, self.K, self.opts, self.roll, self.order = base, K, opts, roll, order
@@ -265,7 +265,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
                   progress: bool = True, source: str = "memory", dataset: str | None = None, profile=None,
                   settings: RenderSettings | None = None) -> TrainingData:
     """The run's training images as (training, validation) datasets of the same items, split by
-    object (:func:`hbeo.render.datasets.split_by_object` with the fixed
+    object (:func:`hbeo.render.torch_datasets.split_by_object` with the fixed
     :data:`hbeo.data.datasets.VAL_SEED`, whatever the training seed: with the default
     ``val_fraction`` the validation objects are :func:`hbeo.data.datasets.validation_records`, on
     which ``evaluate --split val`` scores); ``augment_roll`` rolls every training

@@ -11,7 +11,7 @@ grid. Poses come back in the user's camera frame (R: object -> camera, see
 An input the model cannot have understood is never answered confidently: an image whose
 object reaches none of the network's input pixels (object outside the model's view: wrong
 intrinsics, wrong mask) or whose object lies at an implausible distance
-(:data:`hbeo.render.depthio.DEPTH_RANGE_M`, e.g. millimetres given as metres) raises
+(:data:`hbeo.model.depthfile.DEPTH_RANGE_M`, e.g. millimetres given as metres) raises
 :class:`~hbeo.errors.DataError`; one that is usable but suspicious (object partly outside the
 view, tiny in it, or far from the training distances) gets ``warnings`` and ``low_confidence``
 in its :class:`Prediction`. The file format (``.hbeo``, never unpickled) is
@@ -35,7 +35,7 @@ from hbeo.errors import DataError
 from hbeo.model.modelfile import read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import View, to_model_view
-from hbeo.render.depthio import DEPTH_RANGE_M
+from hbeo.model.depthfile import DEPTH_RANGE_M
 from hbeo.subspace.basis import ObjectSubspace
 
 #: inference precisions: float32 (default, exact) or bfloat16 (network weights and activations;

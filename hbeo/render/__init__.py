@@ -3,8 +3,7 @@
 Owns sampling viewpoints (:mod:`~hbeo.render.poses`), rendering meshes and grids to depth
 (:mod:`~hbeo.render.renderer`), sensor noise (:mod:`~hbeo.render.noise`), the settings and labelled
 views of one object (:mod:`~hbeo.render.views`), the rendered training sets on disk
-(:mod:`~hbeo.render.renderset`) and as torch datasets (:mod:`~hbeo.render.datasets`), and reading a
-user's depth image (:mod:`~hbeo.render.depthio`).
+(:mod:`~hbeo.render.renderset`) and as torch datasets (:mod:`~hbeo.render.torch_datasets`).
 Camera intrinsics and frames are defined once in :mod:`hbeo.conventions`.
 
 May import: the foundation modules, :mod:`hbeo.data` and :mod:`hbeo.subspace`.

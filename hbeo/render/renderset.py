@@ -4,8 +4,8 @@
 random viewpoints (:class:`hbeo.render.poses.ViewSampler`) and writes them, a few objects at a time,
 into compressed shards ``shard_NNNNN.npz``; ``manifest.json``, written last, describes the set
 (:class:`Manifest`). The images of one object come from :class:`hbeo.render.views.ObjectViews`;
-:mod:`hbeo.render.datasets` reads a set for training (:class:`~hbeo.render.datasets.DepthShards`)
-or renders the same images on the fly (:class:`~hbeo.render.datasets.StreamingDepth`).
+:mod:`hbeo.render.torch_datasets` reads a set for training (:class:`~hbeo.render.torch_datasets.DepthShards`)
+or renders the same images on the fly (:class:`~hbeo.render.torch_datasets.StreamingDepth`).
 Imports the foundation, :mod:`hbeo.render` (views, noise; the renderer in workers) and Dask.
 
 Where it renders
@@ -17,7 +17,7 @@ Where it renders
 
 Shard arrays (N = images in the shard; all views of an object are consecutive)
     ``depth`` float16 (N, H, W), metres, 0 = no object; ``mask`` uint8 (N, ceil(H*W/8)), the
-    bit-packed ``depth > 0`` (see :func:`hbeo.render.datasets.load_shard`); ``label`` int64 (N,) into the dataset's
+    bit-packed ``depth > 0`` (see :func:`hbeo.render.torch_datasets.load_shard`); ``label`` int64 (N,) into the dataset's
     classes; ``object_index`` int64 (N,), the object's position in the record list;
     ``object_id`` str (N,); ``view`` int64 (N,), the view's number within its object;
     ``rotation`` float32 (N, 3, 3) and ``axis_angle`` float32 (N, 3), the pose R (object ->

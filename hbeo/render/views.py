@@ -4,8 +4,8 @@
 (image size, views per object, view sampler, object size and distance, backend, noise, seed).
 :class:`ObjectViews` turns an object and the settings into its labelled depth images, the same
 for a written set (:func:`hbeo.render.renderset.render_set`), an on-the-fly one
-(:class:`hbeo.render.datasets.StreamingDepth`) and evaluation
-(:func:`hbeo.reproduction.evaluate.evaluate_model`).
+(:class:`hbeo.render.torch_datasets.StreamingDepth`) and evaluation
+(:func:`hbeo.evaluation.evaluate.evaluate_model`).
 
 Arrays of one object (n = views per object; shard layout, see :mod:`hbeo.render.renderset`)
     ``depth`` float16 (n, H, W), metres, 0 = no object; ``mask`` bool (n, H, W); ``label``,
@@ -191,7 +191,7 @@ def _noise_description(noise) -> dict | None:
 class ObjectViews:
     """All views of one object at a time, with one Renderer per process (opened lazily): the one
     place that turns an object and the settings into labelled depth images (for :func:`render_set`,
-    :class:`hbeo.render.datasets.StreamingDepth` and :func:`hbeo.reproduction.evaluate.evaluate_model`)."""
+    :class:`hbeo.render.torch_datasets.StreamingDepth` and :func:`hbeo.evaluation.evaluate.evaluate_model`)."""
 
     def __init__(self, settings: RenderSettings, subspace=None):
         from hbeo.render import renderer as render

@@ -5,7 +5,7 @@ with the sensor-noise model applied.
 Depth is in metres (0 = no object); rotations take the canonical object frame to the camera frame
 (:mod:`hbeo.conventions`); sets are read through their :class:`~hbeo.render.renderset.Manifest`.
 
-May import: foundation, data, render, and :mod:`hbeo.reproduction.figures` (matplotlib lazily).
+May import: foundation, data, render, and :mod:`hbeo.report.figures` (matplotlib lazily).
 """
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 
 from hbeo.rotations import matrix_to_axis_angle
-from hbeo.reproduction import figures
-from hbeo.render.datasets import DepthShards
+from hbeo.report import figures
+from hbeo.render.torch_datasets import DepthShards
 from hbeo.render.renderset import Manifest
 from hbeo.rundir import RunDir
 

@@ -6,7 +6,7 @@
 :class:`StreamingDepth` renders the same images on the fly (for sets too big for disk) and
 :class:`FreshPoses` renders training views with a fresh pose per object per pass.
 
-Items (dicts of tensors, what :mod:`hbeo.model.train` takes)
+Items (dicts of tensors, what :mod:`hbeo.model.loop` takes)
     ``depth`` (1, H, W) float32 metres (0 = no object), ``label`` int64, ``rotation`` (3, 3)
     and ``axis_angle`` (3,) float32 (object -> camera, :mod:`hbeo.conventions`),
     ``translation`` (3,) float32 metres, ``object_index`` int64 and, if the set has them,

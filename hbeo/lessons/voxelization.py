@@ -4,7 +4,7 @@ step by step, the layout check per class, and the comparison with the published 
 Grids are bool (30, 30, 30) in the 3D ShapeNets layout (:mod:`hbeo.conventions`); occupancy is a
 fraction of the 27,000 voxels, spans and indices are in voxels.
 
-May import: foundation, data, and :mod:`hbeo.reproduction.figures` (matplotlib lazily).
+May import: foundation, data, and :mod:`hbeo.report.figures` (matplotlib lazily).
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pandas as pd
 from hbeo import config
 from hbeo import conventions
 from hbeo.data import datasets
-from hbeo.reproduction import figures
+from hbeo.report import figures
 
 
 def open_dataset(name: str, profile):

@@ -3,7 +3,7 @@ each notebook shows, which test objects and views each scores, and the one cache
 the notebooks call.
 
 Pairs
-    Every setting is scored by :func:`hbeo.reproduction.evaluate.evaluate_model` on query views drawn
+    Every setting is scored by :func:`hbeo.evaluation.evaluate.evaluate_model` on query views drawn
     from seed :data:`SEED` and each object's stable id (:func:`hbeo.render.views.query_rng`): view j
     of object o is the same image for every method. The plan (:func:`eval_plan`): every test object
     of the profile's split with the profile's ``eval_views`` views; the slow searches (BEO 3-DOF, ICP,
@@ -18,7 +18,7 @@ Cache
     file's sha256), and the sha256 of the HBEO model file and of the baseline's file. A later call
     with the same request reads it; anything else evaluates again.
 
-May import: foundation, data, render, model, baselines and :mod:`hbeo.reproduction.evaluate`.
+May import: foundation, data, render, model, baselines and :mod:`hbeo.evaluation.evaluate`.
 """
 from __future__ import annotations
 
@@ -70,14 +70,18 @@ def eval_plan(profile, method: str, pose: str) -> tuple[int | None, int]:
     return fewer, 1
 
 
+#: The layers above the evaluation: they present numbers and never change one, so the code version leaves
+#: them out (with the command line). Every other module of the package is hashed, by rule.
+PRESENTATION_LAYERS = ("report", "lessons")
+
+
 @lru_cache(maxsize=1)
 def code_version() -> str:
-    """sha256 (16 hex digits) of the ``hbeo`` source that computes an evaluation: the whole package but
-    the command line and the reproduction modules that only present results (tables, figures,
-    intervals, reports). A change to any other file invalidates every cached evaluation."""
+    """sha256 (16 hex digits) of the ``hbeo`` source that computes an evaluation: every module but the
+    command line and the layers above the evaluation (:data:`PRESENTATION_LAYERS`: tables, figures,
+    reports, the notebooks' lessons). A change to any other file invalidates every cached evaluation."""
     root = Path(__file__).resolve().parent.parent
-    shown = {p.relative_to(root).as_posix() for p in (root / "reproduction").glob("*.py")
-             if p.name not in ("evaluate.py", "protocol.py", "__init__.py")}
+    shown = {p.relative_to(root).as_posix() for layer in PRESENTATION_LAYERS for p in (root / layer).rglob("*.py")}
     return tree_digest(root, skip={"cli.py", "__main__.py", *shown})[:16]
 
 
@@ -100,14 +104,14 @@ def request(run, dataset, profile, method: str, pose: str) -> dict:
 def evaluation(run, dataset: str, profile, method: str = "hbeo", pose: str | None = None,
                progress: bool = True) -> dict:
     """Metrics of ``method``/``pose`` on the run's paired test views (:func:`eval_plan`,
-    :func:`hbeo.reproduction.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
+    :func:`hbeo.evaluation.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
     when that file answers the same :func:`request`, else computed and written there (atomically).
     ``method`` :data:`VERIFIED` is HBEO with roll averaging and the verify step. The run's model is
-    trained first if missing (:func:`hbeo.model.pipeline.ensure_model`). ``run``: a RunDir or a path."""
+    trained first if missing (:func:`hbeo.run.ensure_model`). ``run``: a RunDir or a path."""
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.data import datasets
-    from hbeo.model.pipeline import ensure_model
-    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.run import ensure_model
+    from hbeo.evaluation.evaluate import evaluate_model
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     verified = method == VERIFIED
@@ -157,7 +161,7 @@ def evaluate_validation(model, dataset: str, profile, progress: bool = True) -> 
     objects its training held out, :func:`hbeo.data.datasets.validation_records`) with the profile's
     ``eval_views`` query views, not cached: where options are compared, never on the test split."""
     from hbeo.data import datasets
-    from hbeo.reproduction.evaluate import evaluate_model
+    from hbeo.evaluation.evaluate import evaluate_model
     prof = config.get_profile(profile)
     ds = datasets.get_dataset(dataset, profile=prof)
     return evaluate_model(model, ds, split="val", views=prof.eval_views, seed=SEED, progress=progress)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from hbeo.reproduction import figures
+from hbeo.report import figures
 from hbeo.rundir import RunDir
 
 
@@ -89,12 +89,12 @@ OPTIONS = ("paper", "6d", "6d_dist", "recipe")
 def option_variants(run, dataset: str, profile, epochs: int | None = None, progress: bool = True) -> pd.DataFrame:
     """Train the paper's recipe, the options beyond it and the run's own recipe on the run's data, all
     for the same epochs (``epochs``, else the profile's ``option_epochs``, else its ``epochs``), and
-    score each on the validation objects (:func:`hbeo.reproduction.protocol.evaluate_validation`; the
+    score each on the validation objects (:func:`hbeo.evaluation.protocol.evaluate_validation`; the
     test split is not used to compare options): accuracy, median pose error (raw and modulo
     symmetry), share within 30 degrees, IoU and the share of empty completions."""
     from hbeo import config
     from hbeo.model.fit import ViewOptions, fit_model
-    from hbeo.reproduction.protocol import evaluate_validation
+    from hbeo.evaluation.protocol import evaluate_validation
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     n = epochs or prof.option_epochs or prof.epochs

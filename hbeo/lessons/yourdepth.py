@@ -8,7 +8,7 @@ Owns the path from a depth file on disk to HBEO's answer and the pictures of it:
   seen by a 640x480 Kinect-like camera (:meth:`hbeo.conventions.Intrinsics.kinect`) with
   :class:`hbeo.render.noise.SensorNoise`, written as a 16-bit PNG in millimetres and a mask PNG into the run;
 - :func:`read_frame` reads a depth image (and mask) as ``python -m hbeo predict`` does
-  (:mod:`hbeo.render.depthio`: 16-bit PNG in millimetres, float ``.npy``/``.tiff`` in metres, times ``depth_scale``);
+  (:mod:`hbeo.model.depthfile`: 16-bit PNG in millimetres, float ``.npy``/``.tiff`` in metres, times ``depth_scale``);
 - :func:`predict_frame` runs :meth:`hbeo.model.inference.HBEO.predict` (and optionally the verify step,
   :class:`hbeo.model.verify.Verifier`), :func:`class_hypotheses` / :func:`rotation_hypotheses` tabulate the
   network's top classes and rotation modes, :func:`checks` the things to look at when the answer is odd;
@@ -36,7 +36,7 @@ import pandas as pd
 from hbeo import config
 from hbeo.conventions import Intrinsics, backproject
 from hbeo.errors import DataError
-from hbeo.reproduction import figures
+from hbeo.report import figures
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_file, atomic_text
 
@@ -132,7 +132,7 @@ def read_frame(depth_path, intrinsics: str | None = None, depth_scale: float | N
     unit; None: 0.001 for integers, 1 for floats), ``intrinsics`` ``"fx,fy,cx,cy"`` in pixels of this image
     (None: Kinect-like for its size, with a printed warning) and an optional mask file. DataError / ValueError
     name the problem, as ``python -m hbeo predict`` does."""
-    from hbeo.render.depthio import parse_intrinsics, read_depth, read_mask
+    from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     depth_path = _path(depth_path)
     depth = read_depth(depth_path, depth_scale)
     H, W = depth.shape
@@ -151,9 +151,9 @@ def read_frame(depth_path, intrinsics: str | None = None, depth_scale: float | N
 
 def load_model(dataset: str, profile, run, model_path=None):
     """The model to ask: ``model_path`` if given, else the run's (trained with the profile's recipe when missing,
-    :func:`hbeo.model.pipeline.ensure_model`). Returns (model, its path)."""
+    :func:`hbeo.run.ensure_model`). Returns (model, its path)."""
     from hbeo.model.inference import HBEO
-    from hbeo.model.pipeline import ensure_model
+    from hbeo.run import ensure_model
     run = RunDir.of(run)
     if model_path is not None:
         return HBEO.load(_path(model_path)), _path(model_path)
@@ -210,7 +210,7 @@ def answer_summary(model, pred, frame: Frame) -> str:
          f"({np.linalg.norm(t):.2f} m away)")
     if frame.truth:
         from hbeo.conventions import UP_SYMMETRY
-        from hbeo.reproduction.evaluate import symmetric_pose_error
+        from hbeo.evaluation.evaluate import symmetric_pose_error
         from hbeo.rotations import geodesic_deg
         R_true = frame.truth["rotation"]
         err = float(geodesic_deg(pred.rotation[0], R_true))
@@ -227,7 +227,7 @@ def checks(model, frame: Frame, pred) -> pd.DataFrame:
     model was trained on."""
     from hbeo.model.inference import DISTANCE_FACTOR, MIN_COVERAGE, MIN_INPUT_FRACTION
     from hbeo.model.preprocess import to_model_view
-    from hbeo.render.depthio import DEPTH_RANGE_M
+    from hbeo.model.depthfile import DEPTH_RANGE_M
     K, Km = frame.intrinsics, model.intrinsics
     min_filled = int(max(16, MIN_INPUT_FRACTION * Km.width * Km.height))
     d = frame.object_depth

@@ -2,13 +2,13 @@
 
 It records the profile and its settings, the dataset, the git commit and tag, whether the working
 tree had uncommitted changes outside ``results/`` (the run writes there), the code version of the
-evaluations (:func:`hbeo.reproduction.protocol.code_version`), package versions, this machine's
+evaluations (:func:`hbeo.evaluation.protocol.code_version`), package versions, this machine's
 hardware (:func:`hardware`), the seeds, for every notebook its wall time and the commit it ran at,
 how each model of the run was trained (from scratch, or resumed from a checkpoint of an interrupted
 run: ``train_*/provenance.json``) and the command line. Written atomically; each update merges the
 notebooks into those already recorded.
 
-May import: foundation and :mod:`hbeo.reproduction.protocol` (torch only to describe the hardware).
+May import: foundation and :mod:`hbeo.evaluation.protocol` (torch only to describe the hardware).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 from hbeo import __version__
 from hbeo import config
-from hbeo.reproduction.protocol import SEED
+from hbeo.evaluation.protocol import SEED
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -88,7 +88,7 @@ def git_state() -> dict:
 
 def training_records(run) -> dict:
     """{model file: how it was trained} from the run's ``train_*/provenance.json``
-    (:func:`hbeo.model.pipeline.train_run_model`)."""
+    (:func:`hbeo.run.train_run_model`)."""
     out = {}
     for p in sorted(RunDir.of(run).path.glob("train_*/provenance.json")):
         rec = json.loads(p.read_text())
@@ -100,7 +100,7 @@ def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, 
     """Create or update the run's ``manifest.json`` (atomically); ``wall_s`` {notebook: seconds} is
     merged into the notebooks already there, each with the commit it ran at (``fresh``: forget the
     notebooks of earlier runs). ``run``: a RunDir or a path. Returns the manifest."""
-    from hbeo.reproduction.protocol import code_version
+    from hbeo.evaluation.protocol import code_version
     run = RunDir.of(run)
     old = {} if fresh or not run.manifest.exists() else json.loads(run.manifest.read_text())
     git = git_state()

@@ -1,5 +1,5 @@
-"""The paper's tables, built from evaluation metrics (:mod:`hbeo.reproduction.evaluate` JSON dicts; the claims and
-intervals are :mod:`hbeo.reproduction.paired`'s), and writing any notebook table into the run folder.
+"""The paper's tables, built from evaluation metrics (:mod:`hbeo.evaluation.evaluate` JSON dicts; the claims and
+intervals are :mod:`hbeo.evaluation.paired`'s), and writing any notebook table into the run folder.
 
 Every paper table carries a ``source`` column: ``reported`` (the paper, :func:`paper_table`, from
 ``paper/reported/*.csv``) or ``reproduced`` (this run). :func:`to_markdown` formats any table as
@@ -17,6 +17,7 @@ import pandas as pd
 
 from hbeo import config
 from hbeo.conventions import CLASSES
+from hbeo.evaluation.method import LABELS, label
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -24,17 +25,7 @@ from hbeo.storage import atomic_text
 REPORTED = config.REPO_ROOT / "paper" / "reported"
 
 #: Display names of (method, pose) settings, as the paper labels them.
-LABELS = {("hbeo", "3dof"): "HBEO (3-DOF)", ("hbeo-verify", "3dof"): "HBEO + rolls + verify (3-DOF, ours)", ("beo", "known"): "BEO (known pose)", ("beo", "1dof"): "BEO (1-DOF)",
-          ("beo", "3dof"): "BEO (3-DOF, true class)", ("icp", "3dof"): "ICP (3-DOF, true class)",
-          ("icp", "1dof"): "ICP (1-DOF, true class)", ("voxcnn", "known"): "3-D CNN on partial grid (known pose)",
-          ("class_mean", "-"): "class mean shape (HBEO's class)"}
 _PAPER_SETTING = {"known_pose": "known", "unknown_pose_1dof": "1dof", "unknown_pose_3dof": "3dof"}
-
-
-def label(metrics: dict) -> str:
-    key = (metrics["method"], metrics["pose"])
-    name = LABELS.get(key, f"{key[0]} ({key[1]})")
-    return name + (" + verify" if metrics.get("verify") and "verify" not in name else "")
 
 
 def paper_table(name: str) -> pd.DataFrame:
@@ -224,7 +215,7 @@ def per_class(metrics: dict) -> pd.DataFrame:
 
 def table2_note(hw: dict) -> str:
     """The lines under Table II: the statistic, and the hardware of this run (``hw`` from
-    :func:`hbeo.reproduction.provenance.hardware`: cpu, cores, gpu, torch threads) and of the paper."""
+    :func:`hbeo.report.provenance.hardware`: cpu, cores, gpu, torch threads) and of the paper."""
     threads = hw.get("torch_threads")
     return ("\n\nSeconds per query: median and interquartile range (p25-p75) over each evaluation's queries "
             "(one view per call, after one untimed warm-up call); the mean beside, as the paper reports means.\n"

@@ -61,7 +61,7 @@ def train_run_model(dataset: str, profile, run, epochs: int | None = None, progr
     the optimizer step of the checkpoint the training continued from (a run cut off earlier), or None
     when it trained from scratch; provenance records it."""
     from hbeo.model.fit import fit_model
-    from hbeo.model.train import CHECKPOINT, load_checkpoint
+    from hbeo.model.loop import CHECKPOINT, load_checkpoint
     prof = config.get_profile(profile)
     run = RunDir.of(run)
     ensure_render(dataset, prof, run, "train", progress=progress)

@@ -5,14 +5,14 @@ and from a half-hidden grid).
 Grids are bool (N, 30, 30, 30); completion errors are :mod:`hbeo.subspace.metrics`' (EDT e' and
 Chamfer in voxels, naive e and IoU unitless), tabled by :mod:`hbeo.subspace.completion`.
 
-May import: foundation, data, subspace, and :mod:`hbeo.reproduction.figures` (matplotlib lazily).
+May import: foundation, data, subspace, and :mod:`hbeo.report.figures` (matplotlib lazily).
 """
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 
-from hbeo.reproduction import figures
+from hbeo.report import figures
 from hbeo.subspace import completion
 
 #: The paper's shared dimension and its per-class component range at 60 % of the variance.

@@ -8,7 +8,7 @@ from azimuth ``azim`` (degrees about +z, from +x toward +y) and elevation ``elev
 run folder (:meth:`hbeo.rundir.RunDir.figure`).
 
 :data:`METHOD_COLORS` is the one place that gives each method setting its colour: every figure of
-notebooks 05-07 (:mod:`hbeo.reproduction.paper_figures`) colours a method with
+notebooks 05-07 (:mod:`hbeo.report.paper_figures`) colours a method with
 :func:`method_color`, the paper's reported figures in the light shade of the same colour.
 
 May import: foundation (matplotlib lazily).
@@ -40,7 +40,7 @@ OTHER_COLOR = "#333333"
 
 
 def method_key(metrics: dict):
-    """Key of a metrics dict (:mod:`hbeo.reproduction.evaluate`) in :data:`METHOD_COLORS`:
+    """Key of a metrics dict (:mod:`hbeo.evaluation.evaluate`) in :data:`METHOD_COLORS`:
     :data:`HBEO_VERIFY` when it ran the verify step (``protocol.VERIFIED``), else (method, pose)."""
     if metrics.get("verify") or str(metrics["method"]).endswith("-verify"):
         return HBEO_VERIFY

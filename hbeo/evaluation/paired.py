@@ -1,6 +1,6 @@
 """Paired comparisons with confidence intervals, and the paper's claims judged by them.
 
-Every method of a run is scored on the same (object, view) pairs (:mod:`hbeo.reproduction.protocol`),
+Every method of a run is scored on the same (object, view) pairs (:mod:`hbeo.evaluation.protocol`),
 so a difference between two methods is measured on the pairs both answered, and its uncertainty is
 that of the *objects*: :class:`PairedBootstrap` draws ``n_boot`` resamples of the test objects (with
 replacement, within each class, so every resample keeps the class counts; an object brings all of
@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from hbeo.reproduction.tables import label
+from hbeo.evaluation.method import label
 
 LEVEL = 0.95
 N_BOOT = 2000

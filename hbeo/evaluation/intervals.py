@@ -3,7 +3,7 @@
 The views of one object are not independent queries (three views of a monitor share its shape), so
 intervals resample *objects* with replacement, keeping all of each object's views (a cluster
 bootstrap), using the ``object`` column of a metrics dict's ``per_query``
-(:mod:`hbeo.reproduction.evaluate`). Percentile intervals, ``n_boot`` resamples from a seeded
+(:mod:`hbeo.evaluation.evaluate`). Percentile intervals, ``n_boot`` resamples from a seeded
 generator: the same inputs give the same interval.
 
 May import: foundation.

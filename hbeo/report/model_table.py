@@ -8,14 +8,14 @@ A run folder's ``models.json`` (:attr:`hbeo.rundir.RunDir.model_rows`) lists the
 Each names metrics files of the same folder (``python -m hbeo evaluate`` output). Configurations are
 compared on the validation objects; only rows marked ``chosen`` (picked there) have a test
 column, each evaluated on the test split once; test figures carry 95 % intervals from a bootstrap
-over test objects (:mod:`hbeo.reproduction.intervals`). :func:`model_table` renders the Markdown table from
+over test objects (:mod:`hbeo.evaluation.intervals`). :func:`model_table` renders the Markdown table from
 those files alone, :func:`write_model_table` writes it to :attr:`hbeo.rundir.RunDir.model_table`
 and, given the README, replaces the block between :data:`BEGIN` and :data:`END` with it; so every
 figure in the table traces to a committed JSON file (a test regenerates the block and compares).
 :func:`targets_table` sets issue 16's targets (:data:`TARGETS`) beside the test figures of the rows
 with a ``target_role`` (``hbeo``, ``hbeo+verify``), each marked met or missed.
 
-May import: foundation and :mod:`hbeo.reproduction.intervals`.
+May import: foundation and :mod:`hbeo.evaluation.intervals`.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from hbeo.errors import DataError
-from hbeo.reproduction.intervals import interval
+from hbeo.evaluation.intervals import interval
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -40,7 +40,7 @@ _COLUMNS = ("accuracy", "pose median", "within 30°", "IoU", "ms/query")
 
 def _figures(m: dict, ci: bool = False) -> list[str]:
     """The row's cells of one metrics dict; ``ci``: with 95 % intervals over objects
-    (:func:`hbeo.reproduction.intervals.interval`, 1,000 resamples)."""
+    (:func:`hbeo.evaluation.intervals.interval`, 1,000 resamples)."""
     pose = m["pose_error_deg"]
     cells = [f"{100 * m['accuracy']:.1f} %", f"{pose['median']:.1f}°", f"{100 * pose['within_30']:.1f} %",
              f"{m['completion']['iou']:.3f}", f"{m['runtime_ms']['mean_per_query']:.1f}"]

@@ -7,7 +7,7 @@ and moved into that frame by a pose (R, t) (:func:`depth_points`: ``x = Rᵀ (p 
 ``u = x · 24 / object_size + 15`` voxels), with a second pose's points optional (hidden at first).
 
 - :func:`object_view` builds it for one test object of a run (notebook 06): query view ``view`` of the first
-  test objects of a class, the same image the evaluations score (:mod:`hbeo.reproduction.protocol`), HBEO's
+  test objects of a class, the same image the evaluations score (:mod:`hbeo.evaluation.protocol`), HBEO's
   completion, the true grid, the points moved with the true pose (and, hidden, with HBEO's predicted pose);
 - :func:`frame_view` builds it for one depth frame and HBEO's answer (notebook 08): the points moved with the
   predicted pose; no true grid (a user's file has none), the true pose's points when the frame knows it.
@@ -17,13 +17,13 @@ and the true grid as their exposed voxel faces (:func:`voxel_faces`, one ``Mesh3
 :data:`TRUTH_OFFSET` voxels beside the completion along +x), the points as markers over both. :func:`to_html`
 gives it as an HTML fragment that works offline: plotly.js is embedded (``include_plotlyjs=True``, ~4.9 MB),
 nothing is loaded from a CDN, and the one ``src="https://…"`` inside the bundle's map code is written with
-``\\/\\/`` (the same JavaScript string) so that the run's book (:func:`hbeo.reproduction.book.remote_references`)
+``\\/\\/`` (the same JavaScript string) so that the run's book (:func:`hbeo.report.book.remote_references`)
 accepts the page. :func:`static_figure` is the same view as a matplotlib figure (shaded grids by
-:func:`hbeo.reproduction.figures.render_voxels` and the points in 3-D) for papermill/nbval runs and viewers that
+:func:`hbeo.report.figures.render_voxels` and the points in 3-D) for papermill/nbval runs and viewers that
 run no JavaScript; :func:`show` displays both in a notebook and saves the PNG into the run folder.
 
-May import: foundation, data, render, model, :mod:`hbeo.reproduction.figures` and
-:mod:`hbeo.reproduction.protocol` (plotly, matplotlib and IPython lazily).
+May import: foundation, data, render, model, :mod:`hbeo.report.figures` and
+:mod:`hbeo.evaluation.protocol` (plotly, matplotlib and IPython lazily).
 """
 from __future__ import annotations
 
@@ -37,14 +37,14 @@ import numpy as np
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.conventions import backproject
-from hbeo.reproduction import figures
+from hbeo.report import figures
 from hbeo.rundir import RunDir
 
 #: Voxels between the completion's and the true grid's origins along +x (a 30-voxel grid and a gap).
 TRUTH_OFFSET = 36.0
 #: At most this many observed points are drawn (a deterministic subsample; the HTML stays small).
 MAX_POINTS = 2000
-#: Colours: the completion in HBEO's colour (:data:`hbeo.reproduction.figures.METHOD_COLORS`), the truth grey,
+#: Colours: the completion in HBEO's colour (:data:`hbeo.report.figures.METHOD_COLORS`), the truth grey,
 #: the points moved with the view's pose black, those moved with the other pose red.
 COMPLETION_COLOR = figures.METHOD_COLORS[("hbeo", "3dof")]
 TRUTH_COLOR, POINTS_COLOR, OTHER_POINTS_COLOR = "#a0a0a0", "#111111", "#d62728"
@@ -231,14 +231,14 @@ def show(view: View3D, run=None, name: str | None = None, include_plotlyjs: bool
 def object_view(run, dataset: str, profile, cls: str | None = None, index: int = 0, view: int = 0) -> View3D:
     """The 3-D view of one test object of ``run``: object ``index`` (in id order) of class ``cls`` (None: a chair,
     or the dataset's first class when it has no chairs) in the test split, query view ``view`` (the image every method's evaluation scores: seed
-    :data:`hbeo.reproduction.protocol.SEED`, :meth:`hbeo.render.views.ObjectViews.query_views`), HBEO's
+    :data:`hbeo.evaluation.protocol.SEED`, :meth:`hbeo.render.views.ObjectViews.query_views`), HBEO's
     completion from that depth image alone, the true grid, the points moved with the true pose and (hidden at
     first) with HBEO's predicted pose. ValueError when the split has no such object."""
     from hbeo.data import datasets
     from hbeo.data.gridset import record_grid
     from hbeo.model.inference import HBEO
     from hbeo.render.views import ObjectViews, RenderSettings
-    from hbeo.reproduction.protocol import SEED
+    from hbeo.evaluation.protocol import SEED
     from hbeo.rotations import geodesic_deg
     run = RunDir.of(run)
     prof = config.get_profile(profile)
@@ -274,7 +274,7 @@ def object_view(run, dataset: str, profile, cls: str | None = None, index: int =
 
 def frame_view(model, frame, answer) -> View3D:
     """The 3-D view of one depth frame and HBEO's answer for it (notebook 08): ``frame`` a
-    :class:`hbeo.reproduction.yourdepth.Frame` (its ``object_depth``, ``intrinsics`` and, for the sample frame,
+    :class:`hbeo.lessons.yourdepth.Frame` (its ``object_depth``, ``intrinsics`` and, for the sample frame,
     ``truth`` with ``rotation`` and ``translation``), ``answer`` a :class:`hbeo.model.inference.Prediction` of
     that one image. The points are moved with the predicted pose; with the true pose too (hidden at first) when
     the frame knows it. No true grid."""

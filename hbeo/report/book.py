@@ -19,7 +19,7 @@ a page would still fetch from the network (``src``, ``<link href>``, CSS ``url()
 :func:`build_book` refuses to write a page that has any. Hyperlinks a notebook's text makes to web pages stay
 links: they load nothing.
 
-Command line: ``python -m hbeo.reproduction.book RUN [OUT]`` (``make book PROFILE=cpu DATASET=procedural``).
+Command line: ``python -m hbeo.report.book RUN [OUT]`` (``make book PROFILE=cpu DATASET=procedural``).
 Files are written atomically (:mod:`hbeo.storage`).
 
 May import: foundation (nbconvert, nbformat, latex2mathml and Pillow lazily).
@@ -291,9 +291,9 @@ def build_book(run, out_dir=None) -> Path:
 
 
 def main(argv=None) -> int:
-    """``python -m hbeo.reproduction.book RUN [OUT]``: build the book; exit 2 with one line on bad input."""
+    """``python -m hbeo.report.book RUN [OUT]``: build the book; exit 2 with one line on bad input."""
     import argparse
-    ap = argparse.ArgumentParser(prog="python -m hbeo.reproduction.book",
+    ap = argparse.ArgumentParser(prog="python -m hbeo.report.book",
                                  description="render a run folder's executed notebooks, tables and figures "
                                              "to a static HTML site that opens offline")
     ap.add_argument("run", help="run folder (results/<profile>-<dataset>)")

@@ -3,12 +3,12 @@ the same queries.
 
 :func:`verify_sweep` renders each validation view once, runs the network once per view, then
 verifies that one prediction with each candidate :class:`hbeo.model.verify.VerifyConfig` (None: HBEO
-alone) and scores every candidate with :func:`hbeo.reproduction.evaluate.summarize`, so candidates
+alone) and scores every candidate with :func:`hbeo.evaluation.evaluate.summarize`, so candidates
 differ only by their settings. The test split is refused: choices are made on validation objects
 (:func:`hbeo.data.datasets.validation_records`), then the test split is evaluated once per chosen row.
 :func:`sweep_rows` flattens the results into the rows of ``verify_sweep.csv`` beside the model.
 
-May import: foundation, data, render, model and :mod:`hbeo.reproduction.evaluate`.
+May import: foundation, data, render, model and :mod:`hbeo.evaluation.evaluate`.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 from tqdm.auto import tqdm
 
-from hbeo.reproduction.evaluate import rendered_chunks, split_records, summarize
+from hbeo.evaluation.evaluate import rendered_chunks, split_records, summarize
 
 
 def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int = 1, seed: int = 0,

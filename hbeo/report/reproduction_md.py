@@ -1,7 +1,7 @@
 """``REPRODUCTION.md``: the paper's numbers beside a finished run's, with intervals, verdicts and every
 deviation from the paper's setup.
 
-:func:`write_reproduction` reads the run folder's manifest (:mod:`hbeo.reproduction.provenance`) and
+:func:`write_reproduction` reads the run folder's manifest (:mod:`hbeo.report.provenance`) and
 the tables and figures notebooks 04-07 wrote there (every path from :class:`hbeo.rundir.RunDir`), and
 writes one Markdown file (atomically) that links into the run: nothing in it is typed by hand except
 the list of deviations, whose figures come from the manifest. :func:`write_reports` is what ``python -m
@@ -154,7 +154,7 @@ def reproduction_text(run, out: Path) -> str:
         f"{os.path.relpath(run.path, config.REPO_ROOT)}`): profile `{man.get('profile')}`, dataset "
         f"`{man.get('dataset')}`, {_git_line(man)}, code version `{man.get('code_version')}`. Every number below "
         f"is read from a file of that folder; intervals are 95 % bootstrap intervals over test objects "
-        f"(`hbeo.reproduction.paired`), n is given with each.",
+        f"(`hbeo.evaluation.paired`), n is given with each.",
         "",
         f"Training: {_training(man)}",
         "",
@@ -228,7 +228,7 @@ def summary(run) -> str:
              if run.table(n).exists()]
     if not parts:
         return f"*(no results in {run.path.name}: run the notebooks first)*\n"
-    from hbeo.reproduction.paired import SHOW, Estimate
+    from hbeo.evaluation.paired import SHOW, Estimate
     long = pd.concat(parts, ignore_index=True)
     cols = {"class_accuracy": "class mean accuracy", "accuracy": "accuracy", "within_30": "within 30°",
             "pose_median": "median pose error", "iou_mean": "mean IoU", "edt_median": "median EDT e′"}
@@ -287,7 +287,7 @@ README_BLOCKS = ((SUMMARY_BEGIN, SUMMARY_END, summary), (SUBSPACE_BEGIN, SUBSPAC
 
 def write_summary(run, readme) -> Path:
     """Replace each of :data:`README_BLOCKS` that the README has with what the run's files give."""
-    from hbeo.reproduction.model_table import replace_block
+    from hbeo.report.model_table import replace_block
     readme = Path(readme)
     text = readme.read_text()
     for begin, end, fn in README_BLOCKS:

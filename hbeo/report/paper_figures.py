@@ -1,9 +1,9 @@
 """The figures of notebooks 05-07 (the paper's Table I, pose and completion figures, Table II),
-drawn from evaluation metrics (:mod:`hbeo.reproduction.evaluate` dicts) and the tables of
-:mod:`hbeo.reproduction.tables`. Each function returns a matplotlib figure; notebooks save it with
-:func:`hbeo.reproduction.figures.save`.
+drawn from evaluation metrics (:mod:`hbeo.evaluation.evaluate` dicts) and the tables of
+:mod:`hbeo.report.tables`. Each function returns a matplotlib figure; notebooks save it with
+:func:`hbeo.report.figures.save`.
 
-Every method has one colour in every figure (:data:`hbeo.reproduction.figures.METHOD_COLORS`; the
+Every method has one colour in every figure (:data:`hbeo.report.figures.METHOD_COLORS`; the
 paper's reported figures in its light shade). Distributions are drawn beside their means, legends
 sit outside the axes (right of the panels), and each axis says which direction is better
 (:data:`BETTER`).
@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from hbeo.conventions import CLASSES
-from hbeo.reproduction import figures
-from hbeo.reproduction.tables import LABELS, label
+from hbeo.report import figures
+from hbeo.evaluation.method import LABELS, label
 
 LOWER, HIGHER = "↓ lower is better", "↑ higher is better"
 #: Which direction is better for each per-query column: errors and times lower; the naive score
@@ -37,9 +37,9 @@ _KEY_OF_LABEL = {v: k for k, v in LABELS.items()}
 
 
 def row_key(name: str, setting: str | None = None):
-    """:data:`~hbeo.reproduction.figures.METHOD_COLORS` key of a table row: its ``method`` label
-    (:func:`hbeo.reproduction.tables.label`, a ``<method> (<pose>), reported only`` row of
-    :func:`~hbeo.reproduction.tables.table2`, or a paper method name with its ``setting``)."""
+    """:data:`~hbeo.report.figures.METHOD_COLORS` key of a table row: its ``method`` label
+    (:func:`hbeo.evaluation.method.label`, a ``<method> (<pose>), reported only`` row of
+    :func:`~hbeo.report.tables.table2`, or a paper method name with its ``setting``)."""
     key = _KEY_OF_LABEL.get(name)
     if key is None:
         m = re.fullmatch(r"(\S+) \((\w+)\)(, reported only)?", name)
@@ -150,7 +150,7 @@ def _completion_row(ax, y: float, values: np.ndarray, empty: np.ndarray, color: 
 
 def completion_bars(cs: pd.DataFrame, evals: list[dict]):
     """The completion figure: per method (the rows of ``cs``,
-    :func:`hbeo.reproduction.tables.completion_summary`) a box of the per-query EDT e', naive e and
+    :func:`hbeo.report.tables.completion_summary`) a box of the per-query EDT e', naive e and
     IoU of ``evals`` (the evaluations ``cs`` was made from) in the method's colour, the mean over all
     queries as a black dot, and the empty completions apart: crosses at their scores, the mean over
     the non-empty completions as an open circle, and their count in the labels and the title. A row
@@ -211,7 +211,7 @@ def completion_bars(cs: pd.DataFrame, evals: list[dict]):
 
 def completion_gallery(samples: list[dict]):
     """Rows of input depth, true grid, HBEO's and BEO's (known pose) completion, from
-    :func:`hbeo.reproduction.protocol.sample_completions`."""
+    :func:`hbeo.evaluation.protocol.sample_completions`."""
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(len(samples), 4, figsize=(7.2, 1.9 * len(samples)), squeeze=False)
     for row, s in zip(axes, samples):
@@ -226,10 +226,10 @@ def completion_gallery(samples: list[dict]):
 
 
 def runtime_bars(t2: pd.DataFrame, hw: dict):
-    """Table II (:func:`hbeo.reproduction.tables.table2`) as bars per method in its colour, seconds
+    """Table II (:func:`hbeo.report.tables.table2`) as bars per method in its colour, seconds
     per query on a log scale: this run's median with interquartile-range error bars (dark) and mean
     (diamond) beside the paper's reported mean (light, hatched). ``hw`` from
-    :func:`hbeo.reproduction.provenance.hardware`."""
+    :func:`hbeo.report.provenance.hardware`."""
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch

@@ -2,7 +2,7 @@
 
 :func:`run_notebooks` executes them in order with the parameters ``profile``, ``dataset`` and
 ``out_dir``; each executed copy goes to :meth:`hbeo.rundir.RunDir.notebook`, and the run's
-manifest (:mod:`hbeo.reproduction.provenance`) gets its wall time. :func:`preflight` fails in
+manifest (:mod:`hbeo.report.provenance`) gets its wall time. :func:`preflight` fails in
 seconds, with what to do, what would otherwise fail hours later.
 
 May import: foundation, data, and the other reproduction modules (papermill and torch lazily).
@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from hbeo import config
-from hbeo.reproduction.provenance import write_manifest
+from hbeo.report.provenance import write_manifest
 from hbeo.rundir import RunDir
 
 NOTEBOOKS = config.REPO_ROOT / "notebooks"
@@ -37,12 +37,12 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     each. The first failing notebook stops the run (papermill raises, and the failing copy shows
     where). ``fresh``: first remove what earlier runs trained or evaluated there (:func:`clear_products`),
     so every model is trained inside this run. After the last notebook, the run's
-    ``REPRODUCTION.md`` is written (:func:`hbeo.reproduction.report.write_reproduction`; for the
-    reference run, :data:`~hbeo.reproduction.report.REFERENCE_RUN`, also ``paper/REPRODUCTION.md``).
+    ``REPRODUCTION.md`` is written (:func:`hbeo.report.reproduction_md.write_reproduction`; for the
+    reference run, :data:`~hbeo.report.reproduction_md.REFERENCE_RUN`, also ``paper/REPRODUCTION.md``).
     Returns the executed copies.
     """
     import papermill as pm
-    from hbeo.reproduction.report import write_reports
+    from hbeo.report.reproduction_md import write_reports
     preflight(profile, dataset)
     run = RunDir.for_run(profile, dataset, out_dir)
     if fresh:
@@ -75,7 +75,7 @@ def clear_products(run) -> list[Path]:
     checkpoints, the protocol's metrics files); grids, subspace and rendered sets stay (they are checked
     against their settings and rebuilt when stale). Returns the removed paths."""
     import shutil
-    from hbeo.reproduction.protocol import EVALUATIONS
+    from hbeo.evaluation.protocol import EVALUATIONS
     run = RunDir.of(run)
     gone = [*run.path.glob("*.hbeo"), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
             *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.path.glob("train_*")]

@@ -1,0 +1,18 @@
+"""Presenting the numbers: the paper's tables and figures, the run's report, manifest and book.
+
+- :mod:`~hbeo.report.tables`: the paper's tables and claims, and writing tables to a run;
+- :mod:`~hbeo.report.figures`: voxel pictures, galleries, axis panels, writing figures;
+- :mod:`~hbeo.report.paper_figures`: the figures of notebooks 05-07;
+- :mod:`~hbeo.report.model_table`: the validation / test table of a run's models (README block);
+- :mod:`~hbeo.report.provenance`: the run's ``manifest.json``;
+- :mod:`~hbeo.report.reproduction_md`: ``REPRODUCTION.md`` (reported vs. reproduced) and the README summary;
+- :mod:`~hbeo.report.notebooks`: running the numbered notebooks with papermill;
+- :mod:`~hbeo.report.book`: the run's static, offline HTML book.
+
+Nothing here changes a number: the evaluation's cache key leaves this layer out
+(:data:`hbeo.evaluation.protocol.PRESENTATION_LAYERS`). Every file of a run is named by
+:class:`hbeo.rundir.RunDir`.
+
+May import: everything below it (foundation, data, subspace, render, model, baselines, :mod:`hbeo.run`,
+:mod:`hbeo.evaluation`); never :mod:`hbeo.lessons` or the command line.
+"""
