@@ -24,7 +24,7 @@ reproduce: setup
 	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter 1,$(RESUME)),,--fresh)
 
 book: setup
-	$(PY) -m hbeo.report.book $(RUN)
+	$(PY) -m hbeo book $(RUN)
 
 test: setup test-unit test-notebooks
 

@@ -60,9 +60,9 @@ def _run_dir(work: Path, objects: int, views: int) -> Path:
 
 def prepare(work: Path, objects: int, views: int) -> Path:
     """Grids, subspace and the rendered training set of the bench run (once; reused after)."""
-    from hbeo.run import ensure_render
+    from hbeo.run import Run
     run = _run_dir(work, objects, views)
-    ensure_render("procedural", _profile(objects, views), run, "train")
+    Run.open(_profile(objects, views), "procedural", run).renders("train")
     return run
 
 
@@ -108,7 +108,8 @@ def child(spec: dict) -> None:
     """One mode, in this process (or this rank): train, then report speed and peak RSS as JSON."""
     import torch
     from hbeo.model import distributed
-    from hbeo.model.fit import fit_model
+    from hbeo.data import datasets
+    from hbeo.model.fit import TrainOptions, fit_model
     from hbeo.rundir import RunDir
     if spec["threads"]:
         torch.set_num_threads(spec["threads"])
@@ -117,9 +118,10 @@ def child(spec: dict) -> None:
     run = RunDir(spec["run"])
     name = f"bench_{spec['tag']}"
     t0 = time.perf_counter()
-    fit_model(run, _profile(spec["objects"], spec["views"]), epochs=spec["epochs"], max_steps=spec["steps"],
-              data=spec["data"],
-              dataset="procedural", out_name=name, progress=False, loader_workers=spec["workers"])
+    prof = _profile(spec["objects"], spec["views"])
+    ds = datasets.get_dataset("procedural", profile=prof) if spec["data"] == "stream" else None
+    fit_model(run, prof, TrainOptions(epochs=spec["epochs"], max_steps=spec["steps"], data=spec["data"], name=name,
+                                      loader_workers=spec["workers"]), dataset=ds, progress=False)
     wall = time.perf_counter() - t0
     import pandas as pd
     log = pd.read_csv(run.train_log(run.model_file(name))) if w.main else None

@@ -1,88 +1,299 @@
-"""The run's steps in order, each skipped when its product is already in the run folder.
+"""A run: one profile, one dataset and one run folder, resolved once, with the pipeline's stages as methods.
 
-grids (notebook 01) -> subspace (02) -> rendered sets (03) -> model (04). The notebooks call the
-same package functions; this module lets one command (``python -m hbeo train``) or any notebook run
-alone (:func:`ensure_model`) build whatever is missing. Where each product lives is :class:`hbeo.rundir.RunDir`'s business; ``run`` is a RunDir
-or a path.
+grids (notebook 01) -> subspace (02) -> rendered sets (03) -> model (04) -> baselines. :meth:`Run.open`
+resolves the profile (:func:`hbeo.config.get_profile`) and loads the dataset
+(:func:`hbeo.data.datasets.get_dataset`, its warnings printed once) a single time; every stage then reads
+them from the :class:`Run` instead of resolving names again. Each stage is skipped when its product is
+already in the run folder, so one command (``python -m hbeo train``) or any notebook alone builds
+whatever is missing. :meth:`Run.train` is the one way a run's model is trained (the CLI's ``train``,
+notebook 04 and its option variants) and always writes ``train_*/provenance.json``. Where each product
+lives is :class:`hbeo.rundir.RunDir`'s business (:attr:`Run.dir`); a Run is also a path
+(``os.fspath(run)``), so functions taking a ``run`` folder accept it.
 
-May import: foundation, data, subspace, render, and the other model modules (lazily).
+The batch steps of the command line (:meth:`Run.voxelize`, :meth:`Run.render`, :meth:`Run.subspace_report`)
+live here too: they write the run's ``failures.json`` and tables; the CLI only parses.
+
+May import: foundation, data, subspace, render, model and baselines.
 """
 from __future__ import annotations
 
 import json
+import sys
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
 
 from hbeo import config
 from hbeo.data import datasets
-from hbeo.data.gridset import run_gridsets
+from hbeo.data.gridset import build_gridset, run_gridsets
+from hbeo.errors import DataError, HBEOError
+from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.render.views import RenderSettings
-from hbeo.rundir import RunDir
+from hbeo.rundir import RunDir, failure_summary
 from hbeo.storage import atomic_text
 from hbeo.subspace.basis import ObjectSubspace
 
 #: Fraction of each class's variance the run's subspace keeps (the paper's 60 %).
 VARIANCE = 0.6
 
-
-def ensure_subspace(dataset: str, profile, run, progress: bool = True) -> ObjectSubspace:
-    """The run's subspace, fitted on its training grids (:data:`VARIANCE`) and saved if missing."""
-    run = RunDir.of(run)
-    if run.subspace.exists():
-        return ObjectSubspace.load(run.subspace)
-    return fit_subspace(dataset, profile, run, progress)
+__all__ = ["Run", "TrainOptions", "Trained", "VARIANCE", "dataset_summary", "load_dataset", "record_failures",
+           "voxelize_to_file"]
 
 
-def fit_subspace(dataset: str, profile, run, progress: bool = True) -> ObjectSubspace:
-    """Fit the run's subspace on its training grids (:data:`VARIANCE`; the grids are built if
-    missing) and save it, replacing any earlier one (notebook 02)."""
-    run = RunDir.of(run)
-    train = run_gridsets(dataset, profile, run, progress=progress)["train"]
-    sub = ObjectSubspace(variance=VARIANCE).fit(train.grids, train.labels, train.classes, progress=progress)
-    sub.save(run.subspace)
-    return sub
+def load_dataset(name: str, prof, **kw):
+    """:func:`hbeo.data.datasets.get_dataset` with its warnings (e.g. skipped empty grids) printed to
+    stderr as one line each, once: later loads of the same dataset in this process stay quiet about it."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ds = datasets.get_dataset(name, profile=prof, **kw)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    warnings.filterwarnings("ignore", message=r".*skipped \d+ empty grids")
+    return ds
 
 
-def ensure_render(dataset: str, profile, run, split: str = "train", settings: RenderSettings | None = None,
-                  progress: bool = True) -> Manifest:
-    """The run's rendered set of ``split`` with the run's subspace coefficients (rendered, resumed,
-    or read when complete); ``settings`` default to the profile's."""
+def record_failures(run, step: str, failures: list, total: int, splits) -> list:
+    """A batch's end: its bad items written to ``run``'s failures.json (replacing that step's old ones)
+    and printed to stderr. Returns ``failures``."""
+    path = RunDir.of(run).write_failures(step, failures, splits=splits)
+    if failures:
+        print(failure_summary(failures, total, path), file=sys.stderr)
+    return failures
+
+
+class Trained(NamedTuple):
+    """What :meth:`Run.train` returns: the model, its file, and the optimizer step of the checkpoint the
+    training continued from (None: trained from scratch)."""
+
+    model: object
+    path: Path
+    resumed: int | None = None
+
+
+def dataset_summary(dataset: str, profile, root=None, download: bool = False, summary: bool = True) -> str:
+    """``python -m hbeo data``: ModelNet10 downloaded first when ``download`` (into ``root``, default
+    :func:`hbeo.config.data_dir`), the dataset read, then (``summary``) its object counts per class and split."""
+    lines = []
+    if download:
+        if dataset != "modelnet10":
+            raise HBEOError("--download applies to --dataset modelnet10 only")
+        from hbeo.data.download import fetch_modelnet10
+        lines.append(f"ModelNet10 ready in {fetch_modelnet10(Path(root) if root else config.data_dir())}")
+    ds = load_dataset(dataset, profile, **({"root": root} if (dataset == "modelnet10" and root) else {}))
+    if not summary:
+        return "\n".join(lines)
+    n_listed = int(ds.summary().loc["total", "total"])
+    lines += [f"dataset {ds.name}: {n_listed} objects listed, {len(ds)} usable, {len(ds.classes)} classes",
+              ds.summary().to_string()]
+    return "\n".join(lines)
+
+
+def voxelize_to_file(profile, dataset: str, out, workers: int = 0, strict: bool = False) -> str:
+    """``python -m hbeo voxelize --out FILE.npz``: every object of ``dataset`` in one file of the published
+    ``modelnet10_vox30.npz`` layout (:func:`hbeo.data.gridfile.write_gridfile`); failures on stderr. Returns
+    the report."""
+    from hbeo.data.gridfile import write_gridfile
     prof = config.get_profile(profile)
-    run = RunDir.of(run)
-    sub = ensure_subspace(dataset, prof, run, progress)
-    ds = datasets.get_dataset(dataset, profile=prof)
-    settings = settings or RenderSettings.from_profile(prof)
-    return render_set(ds, datasets.select(ds, split, prof), split, run.renders(split), settings,
-                      subspace=sub, workers=prof.workers, progress=progress)
+    res = write_gridfile(load_dataset(dataset, prof), out, workers=workers or prof.workers, strict=strict)
+    if res.failures:
+        print(res.failure_report(), file=sys.stderr)
+    return res.report()
 
 
-def train_run_model(dataset: str, profile, run, epochs: int | None = None, progress: bool = True):
-    """Train the run's model with the profile's recipe (:meth:`hbeo.config.Profile.recipe`) on its
-    rendered training set (rendered first if missing). Returns (model, path, resumed): ``resumed`` is
-    the optimizer step of the checkpoint the training continued from (a run cut off earlier), or None
-    when it trained from scratch; provenance records it."""
-    from hbeo.model.fit import fit_model
-    from hbeo.model.loop import CHECKPOINT, load_checkpoint
-    prof = config.get_profile(profile)
-    run = RunDir.of(run)
-    ensure_render(dataset, prof, run, "train", progress=progress)
-    ckpt = run.training(run.model) / CHECKPOINT
-    resumed = None
-    if ckpt.exists():
-        resumed = int(load_checkpoint(ckpt)["step"])
-    model, path = fit_model(run, prof, epochs=epochs, progress=progress, **prof.recipe())
-    info = {"model": path.name, "recipe": prof.recipe(), "epochs": epochs or prof.epochs, "resumed_from_step": resumed,
-            "n_params": model.net.n_params()}
-    atomic_text(run.training(path) / "provenance.json", json.dumps(info, indent=1))
-    return model, path, resumed
+@dataclass(frozen=True)
+class Run:
+    """The run of ``profile`` (a :class:`hbeo.config.Profile`) on ``dataset`` (a loaded
+    :class:`hbeo.data.datasets.Dataset`, named ``dataset_name`` on the command line) in the folder ``dir``.
+    Build it with :meth:`open`."""
 
+    profile: config.Profile
+    dataset: datasets.Dataset
+    dir: RunDir
+    dataset_name: str
 
-def ensure_model(dataset: str, profile, run, progress: bool = True):
-    """The run's HBEO model (:attr:`hbeo.rundir.RunDir.model`): loaded, or trained with the profile's
-    recipe first (:func:`train_run_model`) when missing, so a later notebook runs alone."""
-    from hbeo.model.inference import HBEO
-    run = RunDir.of(run)
-    if run.model.exists():
-        return HBEO.load(run.model)
-    print(f"[hbeo] {run.model} missing: training it with profile {config.get_profile(profile).name}'s recipe "
-          f"(notebook 04)", flush=True)
-    return train_run_model(dataset, profile, run, progress=progress)[0]
+    @classmethod
+    def open(cls, profile, dataset: str, out=None, **dataset_kw) -> "Run":
+        """Resolve ``profile`` (name or Profile), load ``dataset`` (name or folder; warnings printed once)
+        and create the run folder ``out`` (default ``<results>/<profile>-<dataset>``)."""
+        prof = config.get_profile(profile)
+        ds = load_dataset(dataset, prof, **dataset_kw)
+        return cls(prof, ds, RunDir.for_run(prof.name, dataset, out), str(dataset))
+
+    @property
+    def path(self) -> Path:
+        return self.dir.path
+
+    def __fspath__(self) -> str:
+        return str(self.dir.path)
+
+    def records(self, split: str):
+        """The profile's records of ``split`` (:func:`hbeo.data.datasets.select`)."""
+        return datasets.select(self.dataset, split, self.profile)
+
+    # ------------------------------------------------------------------ grids and subspace
+
+    def grids(self, progress: bool = True, rebuild: bool = False) -> dict:
+        """``{"train": GridSet, "test": GridSet}`` (:func:`hbeo.data.gridset.run_gridsets`): read when
+        present, else built and written (``rebuild``: always built, notebook 01)."""
+        return run_gridsets(self.dir, self.dataset, self.profile, progress=progress, rebuild=rebuild)
+
+    def subspace(self, progress: bool = True) -> ObjectSubspace:
+        """The run's subspace: loaded, or fitted (:meth:`fit_subspace`) when missing."""
+        if self.dir.subspace.exists():
+            return ObjectSubspace.load(self.dir.subspace)
+        return self.fit_subspace(progress)
+
+    def fit_subspace(self, progress: bool = True) -> ObjectSubspace:
+        """Fit the subspace on the run's training grids (:data:`VARIANCE`; grids built if missing) and
+        save it, replacing any earlier one (notebook 02)."""
+        train = self.grids(progress=progress)["train"]
+        sub = ObjectSubspace(variance=VARIANCE).fit(train.grids, train.labels, train.classes, progress=progress)
+        sub.save(self.dir.subspace)
+        return sub
+
+    def subspace_report(self, variance: float = VARIANCE, shared_dim: int | None = None,
+                        components: int | None = None, method: str = "lstsq", known: float = 0.5,
+                        seed: int = 0) -> str:
+        """``python -m hbeo subspace``: fit a subspace on the split's grids (built from the voxel cache),
+        save it, score full and partial completion on the test grids (a random ``known``-fraction mask of
+        ``seed``; ``method`` the partial solver), write both tables and the summary JSON. Returns the text
+        to print: per-class components, shared dimension and the mean completion errors per class."""
+        import pandas as pd
+        from hbeo.subspace import completion
+        prof, run = self.profile, self.dir
+        sets = {s: build_gridset(self.dataset, self.records(s), s, workers=prof.workers) for s in ("train", "test")}
+        if components is not None:
+            sub = ObjectSubspace(n_components=components)
+        else:
+            sub = ObjectSubspace(variance=variance, shared_dim=shared_dim)
+        sub.fit(sets["train"].grids, sets["train"].labels, sets["train"].classes)
+        sub.save(run.subspace)
+        counts = pd.DataFrame({"train objects": sets["train"].counts(), "components": sub.n_components_})
+        mask = completion.random_mask(sets["test"].grids.shape, known, seed=seed)
+        rows = {}
+        for mode, m in (("full", None), ("partial", mask)):
+            df = completion.evaluate(sub, sets["test"], m, method=method)
+            atomic_text(run.table(f"subspace_completion_{mode}"), df.to_csv(index=False))
+            rows[mode] = completion.by_class(df)
+        table = pd.concat({m: r[["edt", "naive"]] for m, r in rows.items()}, axis=1)
+        summary = {"dataset": self.dataset.name, "profile": prof.name, "dim": sub.dim_,
+                   "variance_used": sub.variance_used_, "n_components": sub.n_components_, "known_fraction": known,
+                   "seed": seed, "method": method,
+                   "errors": {m: r.round(6).to_dict(orient="index") for m, r in rows.items()}}
+        atomic_text(run.subspace_summary, json.dumps(summary, indent=2))
+        return "\n".join([
+            f"\nper-class components (variance fraction {sub.variance_used_}; paper: 30-70 per class at 0.6):",
+            counts.to_string(), f"shared dimension: {sub.dim_} (paper: 344)   -> {run.subspace}",
+            f"\ntest completion errors, mean per class (full projection; partial from a random "
+            f"{known:.0%}-known mask, seed {seed}, {method}):", table.round(3).to_string()])
+
+    # ------------------------------------------------------------------ batch steps of the command line
+
+    def _failed(self, step: str, failures: list, total: int, splits) -> list:
+        return record_failures(self.dir, step, failures, total, splits)
+
+    def voxelize(self, workers: int = 0) -> list:
+        """``python -m hbeo voxelize``: both splits' grids written into the run folder (one line printed per
+        split). Returns the objects that failed; DataError when nothing of a split succeeded (reported first)."""
+        splits, failures, total = ("train", "test"), [], 0
+        for split in splits:
+            recs = self.records(split)
+            total += len(recs)
+            try:
+                gs = build_gridset(self.dataset, recs, split, workers=workers or self.profile.workers)
+            except DataError as err:
+                self._failed("voxelize", failures + getattr(err, "failures", []), total, splits)
+                raise
+            failures += gs.failures
+            print(f"{split}: {len(gs)} grids -> {gs.save(self.dir.grids(split))}")
+        return self._failed("voxelize", failures, total, splits)
+
+    def render(self, splits, settings: RenderSettings, subspace=None, workers: int = 0,
+               objects_per_shard: int | None = None, progress: bool = True, scheduler: str | None = None) -> list:
+        """``python -m hbeo render``: render ``splits`` with ``settings``, with the coefficients of the
+        subspace file ``subspace`` (default: the run's, when it has one), one line printed per split,
+        warnings about shards rendered again on stderr. Returns the objects that failed; DataError when
+        nothing of a split could be rendered (reported first)."""
+        sub_path = Path(subspace) if subspace else self.dir.subspace
+        subspace = ObjectSubspace.load(sub_path) if (subspace or sub_path.exists()) else None
+        failures, total = [], 0
+        for split in splits:
+            recs = self.records(split)
+            total += len(recs)
+            try:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    m = render_set(self.dataset, recs, split, self.dir.renders(split), settings, subspace=subspace,
+                                   workers=workers or self.profile.workers, objects_per_shard=objects_per_shard,
+                                   progress=progress, scheduler=scheduler)
+            except DataError as err:
+                self._failed("render", failures + getattr(err, "failures", []), total, splits)
+                raise
+            finally:
+                for w in caught:
+                    print(f"warning: {w.message}", file=sys.stderr)
+            failures += m.failures
+            rate = f"{m.images_per_s:.1f} images/s" if m.images_per_s else "already rendered, 0 new images"
+            coeffs = f", coeffs k={m.coeffs_dim}" if m.coeffs_dim else ""
+            print(f"{split}: {m.n_images} images of {len(recs) - len(m.failures)} objects{coeffs} -> {m.root}  "
+                  f"({rate})")
+        return self._failed("render", failures, total, splits)
+
+    # ------------------------------------------------------------------ renders and the model
+
+    def renders(self, split: str = "train", settings: RenderSettings | None = None, progress: bool = True) -> Manifest:
+        """The rendered set of ``split`` with the run's subspace coefficients (rendered, resumed, or read
+        when complete); ``settings`` default to the profile's."""
+        sub = self.subspace(progress)
+        settings = settings or RenderSettings.from_profile(self.profile)
+        return render_set(self.dataset, self.records(split), split, self.dir.renders(split), settings,
+                          subspace=sub, workers=self.profile.workers, progress=progress)
+
+    def train(self, options: TrainOptions | None = None, progress: bool = True) -> Trained:
+        """Train a model of this run (:func:`hbeo.model.fit.fit_model`) with the profile's recipe, overridden
+        by ``options``, on its training images (rendered first when missing; for ``data="stream"`` the
+        subspace alone), and write ``train_<name>/provenance.json`` (recipe, epochs, resumed step,
+        parameters, the options given). Under ``torchrun`` rank 0 prepares the files and writes."""
+        from hbeo.model import distributed
+        from hbeo.model.fit import fit_model
+        from hbeo.model.loop import CHECKPOINT, load_checkpoint
+        opts = options or TrainOptions()
+        prof = self.profile
+        settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler)
+        main = distributed.world().main
+        if main:                                          # rank 0 prepares the shared files, the others wait
+            if (opts.data or prof.train_data) == "stream":
+                self.subspace(progress)
+            else:
+                self.renders("train", settings, progress)
+        distributed.barrier()
+        ckpt = self.dir.training(self.dir.model_file(opts.name)) / CHECKPOINT
+        resumed = int(load_checkpoint(ckpt)["step"]) if ckpt.exists() else None
+        model, path = fit_model(self.dir, prof, opts, dataset=self.dataset, settings=settings, progress=progress)
+        distributed.barrier()                             # the model file is complete before any process goes on
+        if main:
+            info = {"model": path.name, "recipe": opts.recipe(prof), "epochs": opts.epochs or prof.epochs,
+                    "resumed_from_step": resumed, "n_params": model.net.n_params()}
+            if opts.changed():
+                info["options"] = opts.changed()
+            atomic_text(self.dir.training(path) / "provenance.json", json.dumps(info, indent=1))
+        return Trained(model, path, resumed)
+
+    def model(self, progress: bool = True):
+        """The run's HBEO model (:attr:`hbeo.rundir.RunDir.model`): loaded, or trained with the profile's
+        recipe first (:meth:`train`) when missing, so a later notebook runs alone."""
+        from hbeo.model.inference import HBEO
+        if self.dir.model.exists():
+            return HBEO.load(self.dir.model)
+        print(f"[hbeo] {self.dir.model} missing: training it with profile {self.profile.name}'s recipe "
+              f"(notebook 04)", flush=True)
+        return self.train(progress=progress).model
+
+    def baseline(self, name: str, progress: bool = True, **kw):
+        """Baseline ``name`` (``beo``, ``icp``, ``voxcnn``) of this run: loaded, or fitted/trained beside the
+        model when missing (:func:`hbeo.baselines.methods.load_method`)."""
+        from hbeo.baselines.methods import load_method
+        return load_method(name, self.dir, self.profile, progress=progress, **kw)
+

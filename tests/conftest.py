@@ -100,12 +100,12 @@ def ci_run(_ci):
 def ci_grids(_ci):
     """{"train": GridSet, "test": GridSet} of the ci run (run_gridsets, as ``train`` does),
     voxelized into a cache of this session's own."""
-    from hbeo.data.gridset import run_gridsets
+    from hbeo.run import Run
 
     def step():
         with pytest.MonkeyPatch.context() as mp:
             mp.setenv("HBEO_CACHE", str(_ci.cache))
-            sets = run_gridsets(*CI, _ci.run, progress=False)
+            sets = Run.open(CI[1], CI[0], _ci.run.path).grids(progress=False)
         for gs in sets.values():              # shared by every test: a test that writes into them fails
             for a in (gs.grids, gs.labels, gs.ids):
                 a.setflags(write=False)
@@ -116,22 +116,22 @@ def ci_grids(_ci):
 @pytest.fixture(scope="session")
 def ci_subspace(_ci, ci_grids):
     """The ci run's ObjectSubspace, fitted on ``ci_grids["train"]`` and saved in the run."""
-    from hbeo.run import ensure_subspace
-    return _ci.build(lambda: ensure_subspace(*CI, _ci.run, progress=False))
+    from hbeo.run import Run
+    return _ci.build(lambda: Run.open(CI[1], CI[0], _ci.run.path).subspace(progress=False))
 
 
 @pytest.fixture(scope="session")
 def ci_render(_ci, ci_subspace):
     """The Manifest of the ci run's rendered training set (rendered in spawned workers)."""
-    from hbeo.run import ensure_render
-    return _ci.build(lambda: ensure_render(*CI, _ci.run, "train", progress=False))
+    from hbeo.run import Run
+    return _ci.build(lambda: Run.open(CI[1], CI[0], _ci.run.path).renders("train", progress=False))
 
 
 @pytest.fixture(scope="session")
 def ci_render_test(_ci, ci_subspace):
     """The Manifest of the ci run's rendered test set (``train`` does not render it)."""
-    from hbeo.run import ensure_render
-    return _ci.build(lambda: ensure_render(*CI, _ci.run, "test", progress=False))
+    from hbeo.run import Run
+    return _ci.build(lambda: Run.open(CI[1], CI[0], _ci.run.path).renders("test", progress=False))
 
 
 @pytest.fixture(scope="session")

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from hbeo import cli
 from hbeo.errors import DataError
 from hbeo.report import book
 
@@ -110,12 +111,12 @@ def test_remote_references_finds_what_would_load():
 def test_bad_run_folders_are_refused(tmp_path, capsys):
     with pytest.raises(DataError, match="no executed notebooks"):
         book.build_book(tmp_path)
-    assert book.main([str(tmp_path)]) == 2
+    assert cli.main(["book", str(tmp_path)]) == 2
     assert "no executed notebooks" in capsys.readouterr().err
 
 
 def test_command_line_writes_to_the_folder_given(run_folder, tmp_path, capsys):
-    assert book.main([str(run_folder), str(tmp_path / "site")]) == 0
+    assert cli.main(["book", str(run_folder), str(tmp_path / "site")]) == 0
     assert (tmp_path / "site" / "index.html").is_file() and "site" in capsys.readouterr().out
 
 

@@ -44,20 +44,22 @@ def test_evaluation_reads_its_cache_only_for_the_same_request(tmp_path, monkeypa
     from hbeo.errors import DataError
     from hbeo.evaluation import protocol
     from hbeo.rundir import RunDir
+    from hbeo.run import Run
     run = RunDir(tmp_path).create()
     run.model.write_bytes(b"not a model")
     run.baseline("beo").write_bytes(b"not a baseline")
     ds = datasets.get_dataset("procedural", profile="ci")
-    req = protocol.request(run, ds, "ci", "beo", "3dof")
+    r = Run.open("ci", "procedural", run.path)
+    req = protocol.request(r, "beo", "3dof")
     assert req["per_class"] == 1 and req["views"] == 1 and req["code"] == protocol.code_version()
     assert req["baseline_sha256"] and req["model_sha256"] and req["dataset_fingerprint"] == ds.fingerprint()
     run.evaluation("beo", "3dof").write_text(json.dumps({"accuracy": 0.5, "request": req}))
-    assert protocol.evaluation(run, "procedural", "ci", "beo", "3dof")["accuracy"] == 0.5   # ci: 1 per class
-    assert protocol.evaluation(str(tmp_path), "procedural", "ci", "beo", "3dof")["accuracy"] == 0.5
+    assert protocol.evaluation(r, "beo", "3dof")["accuracy"] == 0.5   # ci: 1 per class
+    assert protocol.evaluation(Run.open("ci", "procedural", str(tmp_path)), "beo", "3dof")["accuracy"] == 0.5
     run.baseline("beo").write_bytes(b"another baseline")                 # the baseline file changed
     with pytest.raises(DataError):
-        protocol.evaluation(run, "procedural", "ci", "beo", "3dof")
+        protocol.evaluation(r, "beo", "3dof")
     run.baseline("beo").write_bytes(b"not a baseline")
     monkeypatch.setattr(protocol, "code_version", lambda: "other code")   # the code changed
     with pytest.raises(DataError):
-        protocol.evaluation(run, "procedural", "ci", "beo", "3dof")
+        protocol.evaluation(r, "beo", "3dof")

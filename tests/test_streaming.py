@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from hbeo import config
+from hbeo.data import datasets
 from hbeo.model.fit import ViewOptions, training_data
 from hbeo.model.loop import TrainConfig, data_loader
 from hbeo.render.views import RenderSettings
@@ -18,7 +19,8 @@ def sources(ci_render, ci_subspace, ci_run, copy_run, tmp_path_factory):
     run = copy_run(ci_run, tmp_path_factory.mktemp("stream") / "run")
     prof = config.get_profile("ci")
     settings = RenderSettings.from_profile(prof)
-    return {s: training_data(run, ViewOptions(), source=s, dataset="procedural", profile=prof, settings=settings,
+    ds = datasets.get_dataset("procedural", profile=prof)
+    return {s: training_data(run, ViewOptions(), source=s, dataset=ds, profile=prof, settings=settings,
                              progress=False) for s in ("memory", "shards", "stream")}
 
 

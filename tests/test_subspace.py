@@ -150,11 +150,14 @@ def test_eigen_objects_and_counts_from_spectra(fitted):
 def test_run_gridsets_reads_what_it_wrote(ci_run, ci_grids, monkeypatch, tmp_path):
     """The session's ci run was built by run_gridsets; a second call reads its files (an empty
     voxel cache and unchanged files show nothing was voxelized or written) and gives the same sets."""
+    from hbeo import config
+    from hbeo.data import datasets
     from hbeo.data.gridset import run_gridsets
     assert ci_run.grids("train").exists() and len(ci_grids["test"]) == 30 and len(ci_grids["train"]) == 60
     stamps = {s: ci_run.grids(s).stat().st_mtime_ns for s in ("train", "test")}
     monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
-    again = run_gridsets("procedural", "ci", ci_run, progress=False)
+    again = run_gridsets(ci_run, datasets.get_dataset("procedural", profile="ci"), config.get_profile("ci"),
+                         progress=False)
     assert not (tmp_path / "cache").exists()
     assert {s: ci_run.grids(s).stat().st_mtime_ns for s in ("train", "test")} == stamps
     for s in ("train", "test"):

@@ -274,7 +274,7 @@ def _object_grids(run: RunDir, m: Manifest) -> np.ndarray:
     from hbeo.data.gridset import GridSet
     path = run.grids("train")
     if not path.exists():
-        raise DataError(path, "no training grids in the run folder (notebook 01, or hbeo.run.ensure_render, "
+        raise DataError(path, "no training grids in the run folder (notebook 01, or hbeo.run.Run.renders, "
                               "writes them)")
     gs = GridSet.load(path)
     where = {(gs.classes[int(lab)], str(i)): n for n, (lab, i) in enumerate(zip(gs.labels, gs.ids))}

@@ -270,23 +270,22 @@ def _consolidate(folder: Path, keys: list[str], rows: dict, files: dict[Path, li
         p.unlink(missing_ok=True)
 
 
-def run_gridsets(dataset: str, profile, run, progress: bool = True, rebuild: bool = False) -> dict[str, GridSet]:
+def run_gridsets(run, ds: Dataset, prof, progress: bool = True, rebuild: bool = False) -> dict[str, GridSet]:
     """The run's ``{"train": GridSet, "test": GridSet}``: read from the run folder's grid sets
-    (:meth:`hbeo.rundir.RunDir.grids`) when present, else built from the dataset (cached, see
-    :func:`build_gridset`) and written there. ``rebuild``: build and write them even when present
-    (notebook 01, the step that owns them). ``run``: a :class:`~hbeo.rundir.RunDir` or a path.
-    Objects that failed are left out of the sets and listed in the run's ``failures.json``."""
+    (:meth:`hbeo.rundir.RunDir.grids`) when present, else built from the dataset ``ds`` (a loaded
+    :class:`~hbeo.data.datasets.Dataset`) with the profile ``prof`` (a :class:`~hbeo.config.Profile`)
+    (cached, see :func:`build_gridset`) and written there. ``rebuild``: build and write them even when present
+    (notebook 01, the step that owns them). ``run``: a :class:`~hbeo.rundir.RunDir` or a path (most
+    callers: :meth:`hbeo.run.Run.grids`). Objects that failed are left out of the sets and listed in the
+    run's ``failures.json``."""
     from hbeo.data import datasets
-    prof = config.get_profile(profile)
     run = RunDir.of(run)
-    out, ds = {}, None
+    out = {}
     for split in C.SPLITS:
         path = run.grids(split)
         if path.exists() and not rebuild:
             out[split] = GridSet.load(path)
             continue
-        if ds is None:
-            ds = datasets.get_dataset(dataset, profile=prof)
         try:
             out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.workers,
                                        progress=progress)

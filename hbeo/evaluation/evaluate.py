@@ -47,6 +47,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hbeo import __version__
+from hbeo.model.answer import Predictor
 from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
 from hbeo.errors import DataError
@@ -103,10 +104,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     if unknown := sorted({r.cls for r in records} - set(classes)):
         raise ValueError(f"{dataset.name}: classes {', '.join(unknown)} are unknown to the model "
                          f"(it knows {', '.join(classes)})")
-    verifier = None
-    if verify is not None:
-        from hbeo.model.verify import Verifier
-        verifier = Verifier(model, verify)
+    ask = Predictor(model, rolls, verify) if method is None else None
     rows, failures = [], []
     bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
     warm = False
@@ -120,9 +118,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                     if not warm:      # one untimed call: first-call set-up is not a per-query cost
                         model.predict(depth, K, rolls=rolls)
                         warm = True
-                    p = model.predict(depth, K, rolls=rolls)
-                    if verifier is not None:
-                        p = verifier.apply(depth, K, p)
+                    p = ask(depth, K)[0]
                     pred, R_pred, grid, ms = p.class_names[0], p.rotation[0], p.grids[0], p.timing_ms["total"]
                 else:
                     query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),

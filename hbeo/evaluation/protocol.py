@@ -18,7 +18,7 @@ Cache
     file's sha256), and the sha256 of the HBEO model file and of the baseline's file. A later call
     with the same request reads it; anything else evaluates again.
 
-May import: foundation, data, render, model, baselines and :mod:`hbeo.evaluation.evaluate`.
+May import: foundation, data, render, model, baselines, run and :mod:`hbeo.evaluation.evaluate`.
 """
 from __future__ import annotations
 
@@ -89,61 +89,55 @@ def _sha(path: Path) -> str | None:
     return sha256_file(path)[:16] if path.exists() else None
 
 
-def request(run, dataset, profile, method: str, pose: str) -> dict:
+def request(run, method: str, pose: str) -> dict:
     """What decides an evaluation's result (its cache key): the setting, the objects and views, the
     seed, the code version, the dataset's fingerprint and the model and baseline files' hashes.
-    ``dataset``: a :class:`hbeo.data.datasets.Dataset`."""
-    run = RunDir.of(run)
-    per_class, views = eval_plan(profile, method, pose)
+    ``run``: a :class:`hbeo.run.Run`."""
+    per_class, views = eval_plan(run.profile, method, pose)
     base = method.split("-")[0]
-    return {"method": method, "pose": pose, "dataset": dataset.name, "dataset_fingerprint": dataset.fingerprint(),
-            "per_class": per_class, "views": views, "seed": SEED, "code": code_version(),
-            "model_sha256": _sha(run.model), "baseline_sha256": None if base == "hbeo" else _sha(run.baseline(base))}
+    return {"method": method, "pose": pose, "dataset": run.dataset.name,
+            "dataset_fingerprint": run.dataset.fingerprint(), "per_class": per_class, "views": views, "seed": SEED,
+            "code": code_version(), "model_sha256": _sha(run.dir.model),
+            "baseline_sha256": None if base == "hbeo" else _sha(run.dir.baseline(base))}
 
 
-def evaluation(run, dataset: str, profile, method: str = "hbeo", pose: str | None = None,
-               progress: bool = True) -> dict:
+def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: bool = True) -> dict:
     """Metrics of ``method``/``pose`` on the run's paired test views (:func:`eval_plan`,
     :func:`hbeo.evaluation.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
     when that file answers the same :func:`request`, else computed and written there (atomically).
     ``method`` :data:`VERIFIED` is HBEO with roll averaging and the verify step. The run's model is
-    trained first if missing (:func:`hbeo.run.ensure_model`). ``run``: a RunDir or a path."""
-    from hbeo.baselines.methods import check_method, load_method
-    from hbeo.data import datasets
-    from hbeo.run import ensure_model
+    trained first if missing (:meth:`hbeo.run.Run.model`). ``run``: a :class:`hbeo.run.Run`."""
+    from hbeo.baselines.methods import check_method
     from hbeo.evaluation.evaluate import evaluate_model
-    run = RunDir.of(run)
-    prof = config.get_profile(profile)
     verified = method == VERIFIED
     pose = "3dof" if verified else check_method(method, pose)
-    ds = datasets.get_dataset(dataset, profile=prof)
-    path = run.evaluation(method, pose)
+    path = run.dir.evaluation(method, pose)
     if path.exists():
         try:
             old = json.loads(path.read_text())
-            if old.get("request") == request(run, ds, prof, method, pose):
+            if old.get("request") == request(run, method, pose):
                 return old
         except (OSError, ValueError):
             pass
-    model = ensure_model(dataset, prof, run, progress=progress)
-    meth = None if method in ("hbeo", VERIFIED) else load_method(method, run, prof, progress=progress)
+    model = run.model(progress=progress)
+    meth = None if method in ("hbeo", VERIFIED) else run.baseline(method, progress=progress)
     verify, rolls = None, 1
     if verified:
         from hbeo.model.verify import VerifyConfig
         verify, rolls = VerifyConfig(), VERIFIED_ROLLS if model.net.cfg.rotation == "bins" else 1
-    per_class, views = eval_plan(prof, method, pose)
-    m = evaluate_model(model, ds, split="test", views=views, seed=SEED, per_class=per_class, progress=progress,
-                       method=meth, pose=pose, rolls=rolls, verify=verify)
+    per_class, views = eval_plan(run.profile, method, pose)
+    m = evaluate_model(model, run.dataset, split="test", views=views, seed=SEED, per_class=per_class,
+                       progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
     if verified:
         m["method"] = VERIFIED
-    m["request"] = request(run, ds, prof, method, pose)
+    m["request"] = request(run, method, pose)
     atomic_text(path, json.dumps(m, indent=1))
     return m
 
 
-def evaluations(run, dataset: str, profile, settings=EVALUATIONS, progress: bool = True) -> list[dict]:
+def evaluations(run, settings=EVALUATIONS, progress: bool = True) -> list[dict]:
     """:func:`evaluation` of each (method, pose) in ``settings``, in order."""
-    return [evaluation(run, dataset, profile, m, p, progress=progress) for m, p in settings]
+    return [evaluation(run, m, p, progress=progress) for m, p in settings]
 
 
 def per_query_table(evals: list[dict]):
@@ -156,33 +150,25 @@ def per_query_table(evals: list[dict]):
     return df[["method", "pose", *[c for c in df.columns if c not in ("method", "pose")]]]
 
 
-def evaluate_validation(model, dataset: str, profile, progress: bool = True) -> dict:
-    """HBEO metrics of ``model`` (a variant trained in the run) on the validation objects (training
-    objects its training held out, :func:`hbeo.data.datasets.validation_records`) with the profile's
-    ``eval_views`` query views, not cached: where options are compared, never on the test split."""
-    from hbeo.data import datasets
+def evaluate_validation(model, run, progress: bool = True) -> dict:
+    """HBEO metrics of ``model`` (a variant trained in ``run``, a :class:`hbeo.run.Run`) on the validation
+    objects (training objects its training held out, :func:`hbeo.data.datasets.validation_records`) with
+    the profile's ``eval_views`` query views, not cached: where options are compared, never on the test split."""
     from hbeo.evaluation.evaluate import evaluate_model
-    prof = config.get_profile(profile)
-    ds = datasets.get_dataset(dataset, profile=prof)
-    return evaluate_model(model, ds, split="val", views=prof.eval_views, seed=SEED, progress=progress)
+    return evaluate_model(model, run.dataset, split="val", views=run.profile.eval_views, seed=SEED, progress=progress)
 
 
-def sample_completions(run, dataset: str, profile, n: int = 6, seed: int = SEED) -> list[dict]:
-    """Completions of ``n`` test objects (one per class, in class order) for a gallery: the same
-    views the evaluations score (object i of the test split, ``seed``). Each item: ``class``,
-    ``depth`` (H, W) metres, ``truth``, ``hbeo`` and ``beo`` (known pose) grids (30, 30, 30) bool,
+def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
+    """Completions of ``n`` test objects (one per class, in class order) of ``run`` (a :class:`hbeo.run.Run`)
+    for a gallery: the same views the evaluations score (object i of the test split, ``seed``). Each item:
+    ``class``, ``depth`` (H, W) metres, ``truth``, ``hbeo`` and ``beo`` (known pose) grids (30, 30, 30) bool,
     and the classes HBEO and BEO predicted (``hbeo_class``, ``beo_class``)."""
-    from hbeo.baselines.methods import load_method
-    from hbeo.data import datasets
     from hbeo.data.gridset import record_grid
     from hbeo.model.inference import HBEO
     from hbeo.render.views import ObjectViews, RenderSettings
-    run = RunDir.of(run)
-    prof = config.get_profile(profile)
-    model = HBEO.load(run.model)
-    beo = load_method("beo", run, prof)
-    ds = datasets.get_dataset(dataset, profile=prof)
-    records = ds.records(split="test", per_class=eval_per_class(prof, "hbeo", "3dof"))
+    model = HBEO.load(run.dir.model)
+    beo = run.baseline("beo")
+    records = run.dataset.records(split="test", per_class=eval_per_class(run.profile, "hbeo", "3dof"))
     first = {}
     for i, r in enumerate(records):
         first.setdefault(r.cls, (i, r))
@@ -205,6 +191,37 @@ def sample_completions(run, dataset: str, profile, n: int = 6, seed: int = SEED)
                     "hbeo_class": p.class_names[0], "beo": b["grid"],
                     "beo_class": model.classes[int(np.argmax(b["probabilities"]))]})
     return out
+
+
+def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int = 1, seed: int = 0, sampler=None,
+                  noise: bool = False, per_class: int | None = None, method: str = "hbeo", pose: str | None = None,
+                  precision: str = "float32", rolls: int = 1, verify=None, max_steps: int | None = None,
+                  progress: bool = True) -> dict:
+    """``python -m hbeo evaluate``: the metrics of ``method`` (HBEO, or a baseline fitted/trained beside the
+    model file when missing) on ``dataset``'s ``split`` (read with the model's profile), written to ``out``
+    (JSON); ``split="val"`` also adds a row to the model folder's ``validation.csv``; objects that could not
+    be evaluated go to its ``failures.json``. Returns the metrics."""
+    from hbeo.baselines.methods import check_method, load_method
+    from hbeo.evaluation.evaluate import evaluate_model
+    from hbeo.model.inference import HBEO
+    from hbeo.run import load_dataset, record_failures
+    from hbeo.storage import atomic_file, check_outputs
+    check_outputs({"--out": out}, {"--model": model_path})
+    pose = check_method(method, pose)
+    model = HBEO.load(model_path, precision=precision)
+    folder = RunDir(Path(model_path).parent)
+    profile = model.settings.get("profile", "cpu")
+    ds = load_dataset(dataset, profile)
+    meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
+    metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
+                             per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
+    metrics["model"] = str(model_path)
+    with atomic_file(out, "w") as f:
+        json.dump(metrics, f, indent=2)
+    if split == "val":
+        record_validation(folder, model_path, model, metrics)
+    record_failures(folder, "evaluate", metrics["failures"], metrics["n_objects"] + len(metrics["failures"]), [split])
+    return metrics
 
 
 def record_validation(run, model_path, model, metrics: dict) -> dict:

@@ -86,17 +86,15 @@ PAPER_RECIPE = {"rotation": "axis_angle", "augment_roll": False, "shape_loss": "
 OPTIONS = ("paper", "6d", "6d_dist", "recipe")
 
 
-def option_variants(run, dataset: str, profile, epochs: int | None = None, progress: bool = True) -> pd.DataFrame:
+def option_variants(run, epochs: int | None = None, progress: bool = True) -> pd.DataFrame:
     """Train the paper's recipe, the options beyond it and the run's own recipe on the run's data, all
     for the same epochs (``epochs``, else the profile's ``option_epochs``, else its ``epochs``), and
     score each on the validation objects (:func:`hbeo.evaluation.protocol.evaluate_validation`; the
     test split is not used to compare options): accuracy, median pose error (raw and modulo
     symmetry), share within 30 degrees, IoU and the share of empty completions."""
-    from hbeo import config
-    from hbeo.model.fit import ViewOptions, fit_model
+    from hbeo.model.fit import TrainOptions, ViewOptions
     from hbeo.evaluation.protocol import evaluate_validation
-    run = RunDir.of(run)
-    prof = config.get_profile(profile)
+    prof = run.profile
     n = epochs or prof.option_epochs or prof.epochs
     specs = {"paper": ("paper: axis-angle, coefficient loss", PAPER_RECIPE),
              "6d": ("6-D rotation", {**PAPER_RECIPE, "rotation": "6d"}),
@@ -110,9 +108,9 @@ def option_variants(run, dataset: str, profile, epochs: int | None = None, progr
     rows = {}
     for key in chosen:
         name, kw = specs[key]
-        model, _ = fit_model(run, prof, epochs=n, out_name=run.model_file(f"model_opt_{key}").name, progress=progress,
-                             **kw)
-        v = evaluate_validation(model, dataset, prof, progress=progress)
+        opts = TrainOptions(epochs=n, name=run.dir.model_file(f"model_opt_{key}").name, **kw)
+        model = run.train(opts, progress=progress).model
+        v = evaluate_validation(model, run, progress=progress)
         rows[f"{name} ({n} epochs)"] = {
             "accuracy": v["accuracy"], "pose median (°)": v["pose_error_deg"]["median"],
             "pose median sym (°)": v["pose_error_deg"]["median_sym"], "within 30°": v["pose_error_deg"]["within_30"],

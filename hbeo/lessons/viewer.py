@@ -228,22 +228,19 @@ def show(view: View3D, run=None, name: str | None = None, include_plotlyjs: bool
     return fig
 
 
-def object_view(run, dataset: str, profile, cls: str | None = None, index: int = 0, view: int = 0) -> View3D:
-    """The 3-D view of one test object of ``run``: object ``index`` (in id order) of class ``cls`` (None: a chair,
+def object_view(run, cls: str | None = None, index: int = 0, view: int = 0) -> View3D:
+    """The 3-D view of one test object of ``run`` (a :class:`hbeo.run.Run`): object ``index`` (in id order) of class ``cls`` (None: a chair,
     or the dataset's first class when it has no chairs) in the test split, query view ``view`` (the image every method's evaluation scores: seed
     :data:`hbeo.evaluation.protocol.SEED`, :meth:`hbeo.render.views.ObjectViews.query_views`), HBEO's
     completion from that depth image alone, the true grid, the points moved with the true pose and (hidden at
     first) with HBEO's predicted pose. ValueError when the split has no such object."""
-    from hbeo.data import datasets
     from hbeo.data.gridset import record_grid
     from hbeo.model.inference import HBEO
     from hbeo.render.views import ObjectViews, RenderSettings
     from hbeo.evaluation.protocol import SEED
     from hbeo.rotations import geodesic_deg
-    run = RunDir.of(run)
-    prof = config.get_profile(profile)
-    model = HBEO.load(run.model)
-    ds = datasets.get_dataset(dataset, profile=prof)
+    model = HBEO.load(run.dir.model)
+    ds = run.dataset
     cls = cls or ("chair" if "chair" in ds.classes else ds.classes[0])
     records = ds.records(split="test", classes=[cls])
     if not 0 <= index < len(records):

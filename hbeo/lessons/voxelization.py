@@ -8,7 +8,6 @@ May import: foundation, data, and :mod:`hbeo.report.figures` (matplotlib lazily)
 """
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 import pandas as pd
@@ -17,16 +16,6 @@ from hbeo import config
 from hbeo import conventions
 from hbeo.data import datasets
 from hbeo.report import figures
-
-
-def open_dataset(name: str, profile):
-    """:func:`hbeo.data.datasets.get_dataset` with its warnings (skipped grids, ...) printed as notes."""
-    with warnings.catch_warnings(record=True) as notes:
-        warnings.simplefilter("always")
-        ds = datasets.get_dataset(name, profile=profile)
-    for w in notes:
-        print("note:", w.message)
-    return ds
 
 
 def class_counts(ds, profile) -> pd.DataFrame:

@@ -9,8 +9,8 @@ Owns the path from a depth file on disk to HBEO's answer and the pictures of it:
   :class:`hbeo.render.noise.SensorNoise`, written as a 16-bit PNG in millimetres and a mask PNG into the run;
 - :func:`read_frame` reads a depth image (and mask) as ``python -m hbeo predict`` does
   (:mod:`hbeo.model.depthfile`: 16-bit PNG in millimetres, float ``.npy``/``.tiff`` in metres, times ``depth_scale``);
-- :func:`predict_frame` runs :meth:`hbeo.model.inference.HBEO.predict` (and optionally the verify step,
-  :class:`hbeo.model.verify.Verifier`), :func:`class_hypotheses` / :func:`rotation_hypotheses` tabulate the
+- :func:`predict_frame` asks :class:`hbeo.model.answer.Predictor` (the network, then optionally the verify step,
+  as ``predict`` and the evaluation do), :func:`class_hypotheses` / :func:`rotation_hypotheses` tabulate the
   network's top classes and rotation modes, :func:`checks` the things to look at when the answer is odd;
 - :func:`input_figure`, :func:`points_figure`, :func:`overlay_figure` draw the frame, its back-projected points
   and the completion placed on them; :func:`write_answer` writes the completed mesh (:meth:`HBEO.to_mesh`, as
@@ -149,28 +149,24 @@ def read_frame(depth_path, intrinsics: str | None = None, depth_scale: float | N
     return Frame(depth, K, mask, depth_path, mask_path, depth_scale, source=f"your file {depth_path.name}")
 
 
-def load_model(dataset: str, profile, run, model_path=None):
-    """The model to ask: ``model_path`` if given, else the run's (trained with the profile's recipe when missing,
-    :func:`hbeo.run.ensure_model`). Returns (model, its path)."""
+def load_model(run, model_path=None):
+    """The model to ask: ``model_path`` if given, else the model of ``run`` (a :class:`hbeo.run.Run`; trained
+    with the profile's recipe when missing, :meth:`hbeo.run.Run.model`). Returns (model, its path)."""
     from hbeo.model.inference import HBEO
-    from hbeo.run import ensure_model
-    run = RunDir.of(run)
     if model_path is not None:
         return HBEO.load(_path(model_path)), _path(model_path)
-    return ensure_model(dataset, profile, run), run.model
+    return run.model(), run.dir.model
 
 
 def predict_frame(model, frame: Frame, verify: bool = True, rolls: int = 1):
     """HBEO's answer for the frame (a :class:`~hbeo.model.inference.Prediction` of one image), verified against
     the depth when ``verify`` (:class:`hbeo.model.verify.Verifier`, default settings), as ``predict --verify``;
-    also returns the network's own answer: (answer, network). DataError names the depth file."""
-    from hbeo.model.verify import Verifier
-    try:
-        net = model.predict(frame.depth, frame.intrinsics, frame.mask, rolls=rolls)
-    except DataError as err:
-        raise DataError(frame.depth_path, err.problem) from None
-    answer = Verifier(model).apply(frame.object_depth, frame.intrinsics, net) if verify else net
-    return answer, net
+    also returns the network's own answer: (answer, network). DataError names the depth file. The same
+    "predict then verify" as ``predict`` and the evaluation (:class:`hbeo.model.answer.Predictor`)."""
+    from hbeo.model.answer import Predictor
+    from hbeo.model.verify import VerifyConfig
+    return Predictor(model, rolls, VerifyConfig() if verify else None)(frame.depth, frame.intrinsics, frame.mask,
+                                                                       source=frame.depth_path)
 
 
 def class_hypotheses(model, pred, n: int = 3) -> pd.DataFrame:
@@ -368,16 +364,17 @@ def overlay_figure(model, frame: Frame, pred):
 
 def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls: int = 1) -> dict:
     """Write the completed mesh (:data:`MESH_FILE`, metres, camera frame: :meth:`HBEO.to_mesh`, as
-    ``predict --mesh``) and the answer (:data:`ANSWER_JSON`: ``predict --out``'s keys, plus the intrinsics, the
+    ``predict --mesh``) and the answer (:data:`ANSWER_JSON`: ``predict --out``'s keys (:meth:`hbeo.model.answer.Answer.to_json`), plus the intrinsics, the
     depth scale, the mask, the checks and, for the sample frame, the truth) into ``run``; returns the answer."""
+    from hbeo.model.answer import Answer
     from hbeo.model.verify import VerifyConfig
     run = RunDir.of(run)
     K = frame.intrinsics
-    result = {"model": str(model_path), "depth": str(frame.depth_path), "precision": model.precision, "rolls": rolls,
-              "verify": VerifyConfig().to_dict() if verify else None, **pred.to_dict(0),
-              "intrinsics": {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "width": K.width, "height": K.height},
-              "depth_scale": frame.depth_scale, "mask": str(frame.mask_path) if frame.mask_path else None,
-              "source": frame.source}
+    extra = {"intrinsics": {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "width": K.width, "height": K.height},
+             "depth_scale": frame.depth_scale, "mask": str(frame.mask_path) if frame.mask_path else None,
+             "source": frame.source}
+    result = Answer(pred, pred, str(model_path), str(frame.depth_path), model.precision, rolls,
+                    VerifyConfig().to_dict() if verify else None, extra).to_json()
     if frame.truth:
         result["truth"] = {"class": frame.truth["class"], "rotation": np.round(frame.truth["rotation"], 6).tolist(),
                            "translation_m": np.round(frame.truth["translation"], 6).tolist()}

@@ -19,7 +19,7 @@ May import: foundation, data, subspace, render, and the other hbeo.model modules
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,6 @@ import torch
 from torch.utils.data import Dataset, IterableDataset, Subset
 from tqdm.auto import tqdm
 
-from hbeo import config
 from hbeo.errors import DataError
 from hbeo.data import datasets
 from hbeo.data.datasets import VAL_SEED
@@ -59,7 +58,7 @@ SHARD_MIX = 8
 SHAPE_LOSSES = ("coeffs", "voxels")
 
 
-@dataclass
+@dataclass(frozen=True)
 class ViewOptions:
     """How images enter the network (the same at training and prediction time).
 
@@ -262,7 +261,7 @@ def _shard_coeff_stats(m: Manifest, progress: bool) -> tuple[np.ndarray, np.ndar
 
 
 def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_roll: bool = False,
-                  progress: bool = True, source: str = "memory", dataset: str | None = None, profile=None,
+                  progress: bool = True, source: str = "memory", dataset=None, profile=None,
                   settings: RenderSettings | None = None) -> TrainingData:
     """The run's training images as (training, validation) datasets of the same items, split by
     object (:func:`hbeo.render.torch_datasets.split_by_object` with the fixed
@@ -276,8 +275,8 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
                 shuffled by blocks of that many shards (:class:`ShardSampler`); coefficients standardized with
                 the statistics of every image (as ``memory``, up to rounding).
     ``stream``  rendered on the fly (:class:`FreshPoses`, a fresh pose per object per pass, any
-                image renderable alone) from ``dataset``'s training records of
-                ``profile`` with render ``settings``; validation: ``profile.stream_val_views`` views of
+                image renderable alone) from ``dataset``'s (a loaded Dataset) training records of
+                ``profile`` (a Profile) with render ``settings``; validation: ``profile.stream_val_views`` views of
                 each validation object, rendered once; coefficients standardized with the statistics of
                 the run's training grids. Needs the run's subspace, renders nothing first.
     Memory use of ``shards`` and ``stream`` does not grow with the number of images."""
@@ -307,10 +306,9 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
     if source == "stream":
         if dataset is None or profile is None or settings is None:
             raise ValueError("training_data: source 'stream' needs dataset, profile and settings")
-        prof = config.get_profile(profile)
-        ds = datasets.get_dataset(dataset, profile=prof)
+        prof, ds = profile, dataset
         sub = ObjectSubspace.load(run.subspace)
-        grids = run_gridsets(dataset, prof, run, progress=progress)["train"].grids
+        grids = run_gridsets(run, ds, prof, progress=progress)["train"].grids
         coeffs = np.concatenate([sub.project(grids[i:i + 512]) for i in range(0, len(grids), 512)])
         mean, std = coeffs.mean(0), coeffs.std(0) + 1e-6
         records = datasets.select(ds, "train", prof)
@@ -326,36 +324,83 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
 
 # --------------------------------------------------------------------------- run folder -> model file
 
-def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_angle", normalization: str = "none",
-              view: ViewOptions | None = None, val_fraction: float = 0.1, seed: int = 0,
-              out_name: str | None = None, progress: bool = True,
-              loss: LossWeights | None = None, augment_roll: bool = False,
-              max_steps: int | None = None, data: str | None = None, dataset: str | None = None,
-              settings: RenderSettings | None = None, checkpoint_every: int | None = None,
-              loader_workers: int = 0, shape_loss: str = "coeffs") -> tuple[HBEO, Path]:
-    """Train on the run's training images with its subspace; writes the model file
-    ``out_name`` (``RunDir.model_file``; None: the run's default model) into ``run`` (a RunDir or a
-    path) and returns the model and its path. Checkpoints go to ``RunDir.training(out_name)`` (a rerun resumes exactly).
-    ``loss``: the weights gamma_c, gamma_o, gamma_p of the paper's loss (default 1, 1, 1).
-    ``augment_roll``: roll every training view by a random angle about the optical axis each
-    epoch (:mod:`hbeo.model.augment`; exact, for uniform SO(3) views; not in the paper).
-    ``max_steps``: stop after that many optimizer steps (the schedule ends there).
-    ``data``: where the images come from (:data:`DATA_SOURCES`, see :func:`training_data`; None: the
-    profile's ``train_data``); ``stream`` renders ``dataset``'s objects with ``settings`` (default:
-    the profile's) on the fly, the others read the run's rendered training set.
-    ``checkpoint_every``: also checkpoint every that many steps; ``loader_workers``: DataLoader
-    worker processes that prepare batches while the network trains (0: in this process).
-    ``shape_loss``: what the shape term measures (:data:`SHAPE_LOSSES`).
+@dataclass(frozen=True)
+class TrainOptions:
+    """How to train a run's model (``python -m hbeo train``'s options), one default per field; ``None``
+    means "the profile's": ``epochs``, the recipe (``rotation``, ``augment_roll``, ``shape_loss``:
+    :meth:`hbeo.config.Profile.recipe`) and the data source ``data`` (:data:`DATA_SOURCES`).
+
+    normalization: depth input ``none`` (metres, the paper) or ``center``; view: :class:`ViewOptions`;
+    sampler / views: the training views' sampler and views per object (render settings); loss: the
+    weights gamma_c, gamma_o, gamma_p of the paper's loss; val_fraction: objects held out for validation;
+    name: the model file (None: the run's default); max_steps: stop after that many optimizer steps (the
+    schedule ends there); checkpoint_every: also checkpoint every that many steps; loader_workers:
+    DataLoader worker processes (0: in this process)."""
+
+    epochs: int | None = None
+    rotation: str | None = None
+    augment_roll: bool | None = None
+    shape_loss: str | None = None
+    data: str | None = None
+    normalization: str = "none"
+    view: ViewOptions = field(default_factory=lambda: ViewOptions())
+    sampler: str = "so3"
+    views: int | None = None
+    loss: LossWeights = field(default_factory=LossWeights)
+    val_fraction: float = 0.1
+    seed: int = 0
+    name: str | None = None
+    max_steps: int | None = None
+    checkpoint_every: int | None = None
+    loader_workers: int = 0
+
+    def recipe(self, prof) -> dict:
+        """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``."""
+        return {k: v if (v := getattr(self, k)) is not None else d for k, d in prof.recipe().items()}
+
+    def changed(self) -> dict:
+        """The fields that differ from their defaults, JSON-ready (for provenance)."""
+        out = {}
+        for f in fields(self):
+            v, d = getattr(self, f.name), f.default if f.default is not MISSING else f.default_factory()
+            if v != d:
+                out[f.name] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
+        return out
+
+
+def parse_loss_weights(text: str) -> LossWeights:
+    """``"gamma_c,gamma_o,gamma_p"`` (``python -m hbeo train --loss-weights``) -> :class:`LossWeights`;
+    ValueError naming the option for anything but three non-negative numbers."""
+    try:
+        c, o, p = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--loss-weights takes three numbers gamma_c,gamma_o,gamma_p, got {text!r}") from None
+    if min(c, o, p) < 0:
+        raise ValueError(f"--loss-weights must not be negative, got {text!r}")
+    return LossWeights(c, o, p)
+
+
+def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, settings: RenderSettings | None = None,
+              progress: bool = True) -> tuple[HBEO, Path]:
+    """Train on the run's training images with its subspace: ``run`` a RunDir or a path, ``prof`` a
+    :class:`hbeo.config.Profile`, ``options`` a :class:`TrainOptions`. Writes the model file
+    ``options.name`` (``RunDir.model_file``; None: the run's default model) and returns the model and its
+    path; checkpoints go to ``RunDir.training(name)`` (a rerun resumes exactly). ``stream`` data renders
+    ``dataset`` (a loaded :class:`hbeo.data.datasets.Dataset`) with ``settings`` (default: the profile's)
+    on the fly, the other sources read the run's rendered training set. Most callers want
+    :meth:`hbeo.run.Run.train`, which also prepares the data and writes the provenance.
     Under ``torchrun`` every process trains and returns the model; rank 0 alone writes the file."""
     run = RunDir.of(run)
-    prof = config.get_profile(profile)
-    view = view or ViewOptions()
-    source = data or prof.train_data
+    opts = options or TrainOptions()
+    recipe = opts.recipe(prof)
+    rotation, augment_roll, shape_loss = recipe["rotation"], recipe["augment_roll"], recipe["shape_loss"]
+    view = opts.view
+    source = opts.data or prof.train_data
     if source not in DATA_SOURCES:
         raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
     if shape_loss not in SHAPE_LOSSES:
         raise ValueError(f"unknown shape loss {shape_loss!r}; expected one of {', '.join(SHAPE_LOSSES)}")
-    model_path = run.model_file(out_name)
+    model_path = run.model_file(opts.name)
     sub = ObjectSubspace.load(run.subspace)
     if source != "stream":
         rendered_with = (Manifest.load(run.renders("train")).data.get("subspace") or {}).get("basis_sha256")
@@ -363,18 +408,19 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
             raise DataError(run.renders("train"), f"rendered with another subspace than {run.subspace}; render it "
                                                   f"again (notebook 03)")
     settings = settings or RenderSettings.from_profile(prof)
-    data = training_data(run, view, val_fraction, augment_roll, progress, source, dataset, prof, settings)
+    data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
                     conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
-                    normalization=normalization)
+                    normalization=opts.normalization)
     how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
-           "val_fraction": val_fraction}
+           "val_fraction": opts.val_fraction}
     if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
         how["source"] = source
-    tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
+    tc = TrainConfig(epochs=opts.epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=opts.seed,
                      progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.batch_size)),
-                     max_steps=max_steps, data=how, checkpoint_every=checkpoint_every, num_workers=loader_workers)
-    task = HBEONetTask(cfg, loss or LossWeights(), np.asarray(data.coeff_std) if shape_loss == "voxels" else None)
+                     max_steps=opts.max_steps, data=how, checkpoint_every=opts.checkpoint_every,
+                     num_workers=opts.loader_workers)
+    task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None)
     net = train(task, data.train, data.val, run.training(model_path), tc)
     model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
                       "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,

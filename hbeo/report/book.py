@@ -29,7 +29,6 @@ from __future__ import annotations
 import html
 import json
 import re
-import sys
 from pathlib import Path
 
 from hbeo.errors import DataError
@@ -289,24 +288,3 @@ def build_book(run, out_dir=None) -> Path:
             old.unlink()
     return out / "index.html"
 
-
-def main(argv=None) -> int:
-    """``python -m hbeo.report.book RUN [OUT]``: build the book; exit 2 with one line on bad input."""
-    import argparse
-    ap = argparse.ArgumentParser(prog="python -m hbeo.report.book",
-                                 description="render a run folder's executed notebooks, tables and figures "
-                                             "to a static HTML site that opens offline")
-    ap.add_argument("run", help="run folder (results/<profile>-<dataset>)")
-    ap.add_argument("out", nargs="?", help=f"where the book goes (default: RUN/{BOOK_DIR})")
-    args = ap.parse_args(argv)
-    try:
-        index = build_book(args.run, args.out)
-    except (DataError, OSError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    print(f"[hbeo] book: {index}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -5,7 +5,7 @@
 manifest (:mod:`hbeo.report.provenance`) gets its wall time. :func:`preflight` fails in
 seconds, with what to do, what would otherwise fail hours later.
 
-May import: foundation, data, and the other reproduction modules (papermill and torch lazily).
+May import: foundation, data, run, and the other report modules (papermill and torch lazily).
 """
 from __future__ import annotations
 
@@ -43,8 +43,7 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     """
     import papermill as pm
     from hbeo.report.reproduction_md import write_reports
-    preflight(profile, dataset)
-    run = RunDir.for_run(profile, dataset, out_dir)
+    run = preflight(profile, dataset, out_dir).dir
     if fresh:
         for p in clear_products(run):
             print(f"[hbeo] fresh run: removed {p}", flush=True)
@@ -91,13 +90,13 @@ def clear_products(run) -> list[Path]:
     return out
 
 
-def preflight(profile: str, dataset: str) -> None:
+def preflight(profile: str, dataset: str, out_dir=None):
     """Fail in seconds, with what to do, instead of hours later: the profile must exist, the dataset
     must be readable (``modelnet10`` is downloaded first when missing; without a network that fails
     with the downloader's message), and a profile that ``needs_gpu`` (``full``) needs CUDA unless
-    ``HBEO_ALLOW_CPU=1``."""
-    from hbeo.data import datasets
+    ``HBEO_ALLOW_CPU=1``. Returns the :class:`hbeo.run.Run` (its folder ``out_dir`` created only then)."""
     from hbeo.errors import HBEOError, MissingDataError
+    from hbeo.run import Run
     prof = config.get_profile(profile)
     if prof.needs_gpu and os.environ.get("HBEO_ALLOW_CPU") != "1":
         import torch
@@ -107,9 +106,9 @@ def preflight(profile: str, dataset: str) -> None:
                             f"to torch (install the CUDA build of torch, or set HBEO_ALLOW_CPU=1 to run it on the "
                             f"CPU anyway: days)")
     try:
-        datasets.get_dataset(dataset, profile=prof)
+        return Run.open(prof, dataset, out_dir)
     except MissingDataError:
         if dataset != "modelnet10":
             raise
         print("[hbeo] ModelNet10 meshes missing: downloading (about 0.5 GB)", flush=True)
-        datasets.get_dataset(dataset, profile=prof, download=True)
+        return Run.open(prof, dataset, out_dir, download=True)

@@ -88,7 +88,7 @@ def git_state() -> dict:
 
 def training_records(run) -> dict:
     """{model file: how it was trained} from the run's ``train_*/provenance.json``
-    (:func:`hbeo.run.train_run_model`)."""
+    (:meth:`hbeo.run.Run.train`)."""
     out = {}
     for p in sorted(RunDir.of(run).path.glob("train_*/provenance.json")):
         rec = json.loads(p.read_text())

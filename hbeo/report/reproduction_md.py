@@ -33,7 +33,7 @@ def write_reports(run, profile: str, dataset: str) -> list[Path]:
     run = RunDir.of(run)
     out = [write_reproduction(run, run.path / "REPRODUCTION.md")]
     if (profile, dataset) == REFERENCE_RUN and run.path.resolve() == config.run_path(*REFERENCE_RUN).resolve():
-        out.append(write_reproduction(run))
+        out.append(write_reproduction(run, PAPER / "REPRODUCTION.md"))
     return out
 
 
@@ -126,9 +126,9 @@ def deviations(man: dict) -> list[str]:
 
 
 def write_reproduction(run, out=None) -> Path:
-    """``paper/REPRODUCTION.md`` (or ``out``) from a finished run folder (a RunDir or a path): the text
-    of :func:`reproduction_text`, written atomically. Returns the path written."""
-    out = Path(out) if out else PAPER / "REPRODUCTION.md"
+    """The run's ``REPRODUCTION.md`` (or ``out``, e.g. ``paper/REPRODUCTION.md``) from a finished run folder
+    (a RunDir or a path): the text of :func:`reproduction_text`, written atomically. Returns the path written."""
+    out = Path(out) if out else RunDir.of(run).path / "REPRODUCTION.md"
     atomic_text(out, reproduction_text(run, out))
     return out
 
