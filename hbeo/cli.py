@@ -138,7 +138,7 @@ def cmd_book(args) -> int:
 
 
 def _command(sub, func, name: str, **kw) -> argparse.ArgumentParser:
-    p = sub.add_parser(name, **kw)
+    p = sub.add_parser(name, description=kw.get("help"), **kw)      # the list's line heads the command's --help
     p.set_defaults(func=func)
     return p
 

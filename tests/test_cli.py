@@ -75,3 +75,18 @@ def test_reproduce_refuses_a_gpu_profile_without_cuda(tmp_path):
                          capture_output=True, text=True, env=env)
     assert out.returncode == 2 and "needs a CUDA GPU" in out.stderr and "full profile" in out.stderr
     assert not list(tmp_path.iterdir())                                        # failed before writing anything
+
+
+def test_report_writes_into_the_run_folder_unless_told_otherwise(tmp_path):
+    from hbeo.report import reproduction_md
+    paper = reproduction_md.PAPER / "REPRODUCTION.md"
+    before = paper.stat().st_mtime_ns
+    out = run("report", "--run", str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "REPRODUCTION.md").read_text().startswith("# Reproduction")
+    assert paper.stat().st_mtime_ns == before                       # the committed report is written only when asked
+
+
+def test_book_is_a_subcommand():
+    out = run("book", "--help")
+    assert out.returncode == 0 and "opens offline" in out.stdout and "RUN/book" in out.stdout

@@ -42,7 +42,7 @@ from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, S
 from hbeo.render.renderset import Manifest, subspace_info
 from hbeo.render.views import RenderSettings
 from hbeo.rotations import geodesic_deg, matrix_to_axis_angle
-from hbeo.rundir import RunDir
+from hbeo.rundir import DEFAULT_MODEL, RunDir
 from hbeo.subspace.basis import ObjectSubspace
 
 #: Where training images come from (:func:`training_data`; ``python -m hbeo train --data``).
@@ -333,7 +333,7 @@ class TrainOptions:
     normalization: depth input ``none`` (metres, the paper) or ``center``; view: :class:`ViewOptions`;
     sampler / views: the training views' sampler and views per object (render settings); loss: the
     weights gamma_c, gamma_o, gamma_p of the paper's loss; val_fraction: objects held out for validation;
-    name: the model file (None: the run's default); max_steps: stop after that many optimizer steps (the
+    name: the model file in the run folder; max_steps: stop after that many optimizer steps (the
     schedule ends there); checkpoint_every: also checkpoint every that many steps; loader_workers:
     DataLoader worker processes (0: in this process)."""
 
@@ -349,7 +349,7 @@ class TrainOptions:
     loss: LossWeights = field(default_factory=LossWeights)
     val_fraction: float = 0.1
     seed: int = 0
-    name: str | None = None
+    name: str = DEFAULT_MODEL
     max_steps: int | None = None
     checkpoint_every: int | None = None
     loader_workers: int = 0
@@ -384,7 +384,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
               progress: bool = True) -> tuple[HBEO, Path]:
     """Train on the run's training images with its subspace: ``run`` a RunDir or a path, ``prof`` a
     :class:`hbeo.config.Profile`, ``options`` a :class:`TrainOptions`. Writes the model file
-    ``options.name`` (``RunDir.model_file``; None: the run's default model) and returns the model and its
+    ``options.name`` (``RunDir.model_file``) and returns the model and its
     path; checkpoints go to ``RunDir.training(name)`` (a rerun resumes exactly). ``stream`` data renders
     ``dataset`` (a loaded :class:`hbeo.data.datasets.Dataset`) with ``settings`` (default: the profile's)
     on the fly, the other sources read the run's rendered training set. Most callers want

@@ -1,0 +1,81 @@
+"""hbeo.run.Run: the profile and dataset resolved once, stages that skip what the run folder already holds,
+and one training path (the CLI's ``train`` and notebook 04) that always records its provenance."""
+import json
+
+import pytest
+
+from hbeo import cli, config
+from hbeo.config import Profile
+from hbeo.data import datasets
+from hbeo.model.fit import TrainOptions, ViewOptions
+from hbeo.run import Run, Trained
+from hbeo.rundir import DEFAULT_MODEL
+
+
+def _count(monkeypatch):
+    """Count resolutions of a profile from its name and loads of a dataset, wherever they happen."""
+    calls = {"profile": 0, "dataset": 0}
+    get_profile, get_dataset = config.get_profile, datasets.get_dataset
+
+    def counted_profile(name, **kw):
+        calls["profile"] += not isinstance(name, Profile)
+        return get_profile(name, **kw)
+
+    def counted_dataset(*a, **kw):
+        calls["dataset"] += 1
+        return get_dataset(*a, **kw)
+    monkeypatch.setattr(config, "get_profile", counted_profile)
+    monkeypatch.setattr(datasets, "get_dataset", counted_dataset)
+    return calls
+
+
+def test_the_train_command_resolves_the_profile_and_dataset_once_and_records_provenance(
+        ci_render, ci_run, copy_run, tmp_path, monkeypatch):
+    run = copy_run(ci_run, tmp_path / "run")
+    calls = _count(monkeypatch)
+    assert cli.main(["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
+                     "--max-steps", "1", "--rotation", "6d", "--quiet"]) == 0
+    assert calls == {"profile": 1, "dataset": 1}
+    info = json.loads((run.training(run.model) / "provenance.json").read_text())
+    assert info["model"] == DEFAULT_MODEL and info["epochs"] == 1 and info["resumed_from_step"] is None
+    assert info["recipe"]["rotation"] == "6d" and info["n_params"] > 0
+    assert info["options"] == {"epochs": 1, "rotation": "6d", "max_steps": 1}
+    assert run.model.is_file()
+
+
+def test_stages_skip_what_the_run_folder_holds(ci_render, ci_run, copy_run, tmp_path, monkeypatch):
+    """Grids, subspace and rendered set are read, not built again; the model is trained only when missing."""
+    import hbeo.run as run_module
+    from hbeo.subspace.basis import ObjectSubspace
+    folder = copy_run(ci_run, tmp_path / "run", names=["grids_train.npz", "grids_test.npz", "subspace.npz",
+                                                       "render_train"])
+    calls = _count(monkeypatch)
+    run = Run.open("ci", "procedural", folder.path)
+    assert calls == {"profile": 1, "dataset": 1} and run.profile.name == "ci" and run.path == folder.path
+
+    def refuse(*a, **kw):
+        raise AssertionError("built again")
+    monkeypatch.setattr("hbeo.data.gridset.build_gridset", refuse)
+    monkeypatch.setattr(ObjectSubspace, "fit", refuse)
+    stamps = {p: p.stat().st_mtime_ns for p in folder.path.rglob("*") if p.is_file()}
+    assert len(run.grids(progress=False)["train"]) == 60
+    assert run.subspace(progress=False).dim_ == ObjectSubspace.load(folder.subspace).dim_
+    m = run.renders("train", progress=False)
+    assert m.n_images == ci_render.n_images and not m.images_per_s
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
+    assert calls == {"profile": 1, "dataset": 1}          # no stage resolved anything again
+    trained = []
+    monkeypatch.setattr(run_module.Run, "train",
+                        lambda self, options=None, progress=True: trained.append(options) or Trained("m", None))
+    assert run.model(progress=False) == "m" and trained == [None]     # missing: trained with the recipe
+
+
+def test_train_options_fill_the_recipe_from_the_profile_and_report_what_changed():
+    prof = config.get_profile("ci")
+    assert TrainOptions().recipe(prof) == prof.recipe() and TrainOptions().changed() == {}
+    opts = TrainOptions(rotation="bins", augment_roll=False, view=ViewOptions(True, 1.7), seed=3)
+    assert opts.recipe(prof) == {**prof.recipe(), "rotation": "bins", "augment_roll": False}
+    assert opts.changed() == {"rotation": "bins", "augment_roll": False, "seed": 3,
+                              "view": {"recenter": True, "ref_distance": 1.7}}
+    with pytest.raises(Exception):
+        opts.seed = 4                                   # frozen: one set of options per training
