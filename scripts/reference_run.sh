@@ -19,4 +19,4 @@ $E --split val --rolls 4 --out $R/eval_val-ref-rolls4.json
 $E --split val --rolls 4 --verify --out $R/eval_val-ref-verify.json
 $E --split test --rolls 4 --out $R/eval_test-ref-rolls4.json
 $PY -m hbeo report --model-table --run $R --readme README.md
-$PY -m hbeo report --run $R --readme README.md
+$PY -m hbeo report --run $R --out paper/REPRODUCTION.md --readme README.md

@@ -82,6 +82,7 @@ def test_readme_blocks_are_what_the_committed_run_gives(begin, end, fn):
 def test_reproduction_md_is_generated_from_the_committed_run():
     out = ROOT / "paper" / "REPRODUCTION.md"
     assert out.read_text() == report.reproduction_text(RUN, out), \
-        "stale paper/REPRODUCTION.md: run python -m hbeo report --run results/cpu-modelnet10-vox30"
+        ("stale paper/REPRODUCTION.md: run python -m hbeo report --run results/cpu-modelnet10-vox30 "
+         "--out paper/REPRODUCTION.md")
     for link in re.findall(r"\]\(([^)#]+)\)", out.read_text()):
         assert (out.parent / link).exists(), f"REPRODUCTION.md links to a missing file: {link}"

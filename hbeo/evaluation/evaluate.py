@@ -47,10 +47,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hbeo import __version__
-from hbeo.model.answer import Predictor
 from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
 from hbeo.errors import DataError
+from hbeo.model.answer import Predictor
 from hbeo.render.views import object_key
 from hbeo.rotations import geodesic_deg, z_angle_to_matrix
 from hbeo.rundir import failure

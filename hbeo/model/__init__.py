@@ -5,8 +5,9 @@ project (:mod:`~hbeo.model.loop`), fitting HBEO from a run folder (:mod:`~hbeo.m
 exact camera-roll augmentation (:mod:`~hbeo.model.augment`), bringing a user's depth image into the
 model's camera (:mod:`~hbeo.model.preprocess`), the safe model file and inference
 (:mod:`~hbeo.model.inference`, :mod:`~hbeo.model.modelfile`), reading a user's depth image
-(:mod:`~hbeo.model.depthfile`), checking an answer against the depth (:mod:`~hbeo.model.verify`) and
-data-parallel training (:mod:`~hbeo.model.distributed`).
+(:mod:`~hbeo.model.depthfile`), checking an answer against the depth (:mod:`~hbeo.model.verify`), one
+depth image's answer, predicted then verified (:mod:`~hbeo.model.answer`) and data-parallel training
+(:mod:`~hbeo.model.distributed`).
 
 May import: the foundation modules, :mod:`hbeo.data`, :mod:`hbeo.subspace`, :mod:`hbeo.render`.
 """
