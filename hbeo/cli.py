@@ -72,7 +72,7 @@ def cmd_voxelize(args) -> int:
     ds = _load_dataset(args.dataset, prof)
     if (args.out or "").endswith(".npz"):     # one file of every object, the published vox30 layout
         from hbeo.data.gridfile import write_gridfile
-        res = write_gridfile(ds, args.out, workers=args.workers or prof.workers, strict=args.strict)
+        res = write_gridfile(ds, args.out, workers=args.workers or prof.data.workers, strict=args.strict)
         print(res.report())
         if res.failures:
             print(res.failure_report(), file=sys.stderr)
@@ -83,7 +83,7 @@ def cmd_voxelize(args) -> int:
         recs = datasets.select(ds, split, prof)
         total += len(recs)
         try:
-            gs = build_gridset(ds, recs, split, workers=args.workers or prof.workers)
+            gs = build_gridset(ds, recs, split, workers=args.workers or prof.data.workers)
         except DataError as err:            # nothing of the split succeeded: report, then exit 2
             _report_failures(run, "voxelize", failures + getattr(err, "failures", []), total, True, splits)
             raise
@@ -104,7 +104,7 @@ def cmd_subspace(args) -> int:
     prof = config.get_profile(args.profile)
     ds = _load_dataset(args.dataset, prof)
     run = RunDir.for_run(prof.name, args.dataset, args.out)
-    sets = {s: build_gridset(ds, datasets.select(ds, s, prof), s, workers=prof.workers) for s in ("train", "test")}
+    sets = {s: build_gridset(ds, datasets.select(ds, s, prof), s, workers=prof.data.workers) for s in ("train", "test")}
     if args.components is not None:
         sub = ObjectSubspace(n_components=args.components)
     else:
@@ -155,7 +155,7 @@ def cmd_render(args) -> int:
             with warnings.catch_warnings(record=True) as caught:   # shards rendered again, and why
                 warnings.simplefilter("always")
                 m = render_set(ds, recs, split, run.renders(split), settings, subspace=subspace,
-                               workers=args.workers or prof.workers, objects_per_shard=args.objects_per_shard,
+                               workers=args.workers or prof.data.workers, objects_per_shard=args.objects_per_shard,
                                progress=not args.quiet, scheduler=args.scheduler)
         except DataError as err:            # nothing of the split could be rendered: report, then exit 2
             _report_failures(run, "render", failures + getattr(err, "failures", []), total, True, splits)
@@ -193,7 +193,7 @@ def cmd_train(args) -> int:
     _load_dataset(args.dataset, prof)                 # fail fast, print dataset warnings once
     run = RunDir.for_run(prof.name, args.dataset, args.out)
     settings = RenderSettings.from_profile(prof, views_per_object=args.views, sampler=args.sampler)
-    source = args.data or prof.train_data
+    source = args.data or prof.data.train_data
     quiet = args.quiet or not world.main
     if world.main:                                    # rank 0 prepares the shared files, the others wait
         if source == "stream":                        # grids and subspace only: views are rendered on the fly
@@ -202,7 +202,7 @@ def cmd_train(args) -> int:
             ensure_render(args.dataset, prof, run, "train", settings=settings, progress=not quiet)
     distributed.barrier()
     view = ViewOptions(recenter=args.recenter, ref_distance=args.ref_distance)
-    recipe = {k: prof.recipe()[k] if getattr(args, k) is None else getattr(args, k) for k in prof.recipe()}
+    recipe = {k: prof.recipe.fit_kwargs()[k] if getattr(args, k) is None else getattr(args, k) for k in prof.recipe.fit_kwargs()}
     model, path = fit_model(run, prof, epochs=args.epochs, normalization=args.normalize, view=view, seed=args.seed,
                             out_name=args.name, progress=not quiet, loss=weights, max_steps=args.max_steps,
                             data=source, dataset=args.dataset, settings=settings, checkpoint_every=args.checkpoint_every,

@@ -52,7 +52,7 @@ def ensure_render(dataset: str, profile, run, split: str = "train", settings: Re
     ds = datasets.get_dataset(dataset, profile=prof)
     settings = settings or RenderSettings.from_profile(prof)
     return render_set(ds, datasets.select(ds, split, prof), split, run.renders(split), settings,
-                      subspace=sub, workers=prof.workers, progress=progress)
+                      subspace=sub, workers=prof.data.workers, progress=progress)
 
 
 def train_run_model(dataset: str, profile, run, epochs: int | None = None, progress: bool = True):
@@ -69,8 +69,8 @@ def train_run_model(dataset: str, profile, run, epochs: int | None = None, progr
     resumed = None
     if ckpt.exists():
         resumed = int(load_checkpoint(ckpt)["step"])
-    model, path = fit_model(run, prof, epochs=epochs, progress=progress, **prof.recipe())
-    info = {"model": path.name, "recipe": prof.recipe(), "epochs": epochs or prof.epochs, "resumed_from_step": resumed,
+    model, path = fit_model(run, prof, epochs=epochs, progress=progress, **prof.recipe.fit_kwargs())
+    info = {"model": path.name, "recipe": prof.recipe.fit_kwargs(), "epochs": epochs or prof.recipe.epochs, "resumed_from_step": resumed,
             "n_params": model.net.n_params()}
     atomic_text(run.training(path) / "provenance.json", json.dumps(info, indent=1))
     return model, path, resumed

@@ -202,7 +202,7 @@ class RunDir:
 
     def named_evaluation(self, name: str) -> Path:
         """Metrics JSON of an evaluation outside the notebooks' protocol, ``eval_<name>.json``
-        (``scripts/issue16_reference.sh`` writes ``test-ref``: the run's model on the whole test split)."""
+        (``scripts/model_table.sh`` writes ``test-ref``: the run's model on the whole test split)."""
         return self.path / f"eval_{_check_name('evaluation name', name)}.json"
 
     def figure(self, name: str) -> Path:

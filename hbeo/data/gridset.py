@@ -288,7 +288,7 @@ def run_gridsets(dataset: str, profile, run, progress: bool = True, rebuild: boo
         if ds is None:
             ds = datasets.get_dataset(dataset, profile=prof)
         try:
-            out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.workers,
+            out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.data.workers,
                                        progress=progress)
         except DataError as err:
             run.write_failures("voxelize", getattr(err, "failures", []), splits=[split])

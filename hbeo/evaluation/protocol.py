@@ -62,11 +62,11 @@ def eval_plan(profile, method: str, pose: str) -> tuple[int | None, int]:
     profile's test split with ``eval_views`` views, or for the slow searches (``beo_1dof_test_per_class``,
     ``beo_3dof_test_per_class``, ``icp_test_per_class``) the first objects of each class, view 0 only."""
     prof = config.get_profile(profile)
-    fewer = {("beo", "1dof"): prof.beo_1dof_test_per_class, ("beo", "3dof"): prof.beo_3dof_test_per_class,
-             ("icp", "3dof"): prof.icp_test_per_class, ("icp", "1dof"): prof.icp_test_per_class}.get((method, pose))
-    test_n = prof.n_test_per_class
+    fewer = {("beo", "1dof"): prof.evaluation.beo_1dof_test_per_class, ("beo", "3dof"): prof.evaluation.beo_3dof_test_per_class,
+             ("icp", "3dof"): prof.evaluation.icp_test_per_class, ("icp", "1dof"): prof.evaluation.icp_test_per_class}.get((method, pose))
+    test_n = prof.data.n_test_per_class
     if fewer is None or (test_n is not None and fewer >= test_n):
-        return test_n, prof.eval_views
+        return test_n, prof.evaluation.eval_views
     return fewer, 1
 
 
@@ -164,7 +164,7 @@ def evaluate_validation(model, dataset: str, profile, progress: bool = True) -> 
     from hbeo.evaluation.evaluate import evaluate_model
     prof = config.get_profile(profile)
     ds = datasets.get_dataset(dataset, profile=prof)
-    return evaluate_model(model, ds, split="val", views=prof.eval_views, seed=SEED, progress=progress)
+    return evaluate_model(model, ds, split="val", views=prof.evaluation.eval_views, seed=SEED, progress=progress)
 
 
 def sample_completions(run, dataset: str, profile, n: int = 6, seed: int = SEED) -> list[dict]:

@@ -97,16 +97,16 @@ def option_variants(run, dataset: str, profile, epochs: int | None = None, progr
     from hbeo.evaluation.protocol import evaluate_validation
     run = RunDir.of(run)
     prof = config.get_profile(profile)
-    n = epochs or prof.option_epochs or prof.epochs
+    n = epochs or prof.recipe.option_epochs or prof.recipe.epochs
     specs = {"paper": ("paper: axis-angle, coefficient loss", PAPER_RECIPE),
              "6d": ("6-D rotation", {**PAPER_RECIPE, "rotation": "6d"}),
              "6d_dist": ("6-D + distance-insensitive", {**PAPER_RECIPE, "rotation": "6d", "view": ViewOptions(True, 1.7)}),
-             "recipe": (f"this profile's recipe: {prof.rotation}, roll {'on' if prof.augment_roll else 'off'}, "
-                        f"{prof.shape_loss} loss", prof.recipe())}
-    unknown = set(prof.options) - set(OPTIONS)
+             "recipe": (f"this profile's recipe: {prof.recipe.rotation}, roll {'on' if prof.recipe.augment_roll else 'off'}, "
+                        f"{prof.recipe.shape_loss} loss", prof.recipe.fit_kwargs())}
+    unknown = set(prof.recipe.options) - set(OPTIONS)
     if unknown:
         raise ValueError(f"profile {prof.name}: unknown options {sorted(unknown)}; expected some of {OPTIONS}")
-    chosen = [o for o in prof.options if not (o == "recipe" and prof.recipe() == PAPER_RECIPE)]
+    chosen = [o for o in prof.recipe.options if not (o == "recipe" and prof.recipe.fit_kwargs() == PAPER_RECIPE)]
     rows = {}
     for key in chosen:
         name, kw = specs[key]

@@ -318,7 +318,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
         K = settings.intrinsics
         train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
-                                   replace(settings, views_per_object=prof.stream_val_views), sub, shuffle=False)
+                                   replace(settings, views_per_object=prof.data.stream_val_views), sub, shuffle=False)
         return TrainingData(ModelView(train_views, K, view, mean, std, augment_roll),
                             ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std)
     raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
@@ -350,7 +350,7 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     view = view or ViewOptions()
-    source = data or prof.train_data
+    source = data or prof.data.train_data
     if source not in DATA_SOURCES:
         raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
     if shape_loss not in SHAPE_LOSSES:
@@ -365,14 +365,14 @@ def fit_model(run, profile, epochs: int | None = None, rotation: str = "axis_ang
     settings = settings or RenderSettings.from_profile(prof)
     data = training_data(run, view, val_fraction, augment_roll, progress, source, dataset, prof, settings)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
-                    conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
+                    conv_channels=tuple(prof.network.conv_channels), fc=tuple(prof.network.fc), kernel=prof.network.kernel, rotation=rotation,
                     normalization=normalization)
     how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
            "val_fraction": val_fraction}
     if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
         how["source"] = source
-    tc = TrainConfig(epochs=epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=seed,
-                     progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.batch_size)),
+    tc = TrainConfig(epochs=epochs or prof.recipe.epochs, batch_size=prof.recipe.batch_size, lr=prof.recipe.lr, seed=seed,
+                     progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
                      max_steps=max_steps, data=how, checkpoint_every=checkpoint_every, num_workers=loader_workers)
     task = HBEONetTask(cfg, loss or LossWeights(), np.asarray(data.coeff_std) if shape_loss == "voxels" else None)
     net = train(task, data.train, data.val, run.training(model_path), tc)

@@ -103,7 +103,7 @@ def preflight(profile: str, dataset: str) -> None:
         import torch
         if not torch.cuda.is_available():
             raise HBEOError(f"the {prof.name} profile trains the paper-sized network on millions of "
-                            f"{prof.image_size[0]}x{prof.image_size[1]} images and needs a CUDA GPU; none is visible "
+                            f"{prof.data.image_size[0]}x{prof.data.image_size[1]} images and needs a CUDA GPU; none is visible "
                             f"to torch (install the CUDA build of torch, or set HBEO_ALLOW_CPU=1 to run it on the "
                             f"CPU anyway: days)")
     try:
