@@ -15,7 +15,7 @@ RU=results/cpu-$D-upright
 # scores other views of the same objects than the committed eval_so3_*.json files (docs/history.md).
 P="--epochs 10 --rotation axis_angle --no-augment-roll --shape-loss coeffs"
 # (the axis-angle model was the run's model.hbeo until issue 16's reference model replaced it:
-#  scripts/issue16_reference.sh)
+#  scripts/model_table.sh)
 $PY -m hbeo train --dataset $D --profile cpu $P --name model_axis_angle.hbeo --quiet
 $PY -m hbeo evaluate --model $R/model_axis_angle.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $R/eval_so3_axis_angle.json
 $PY -m hbeo train --dataset $D --profile cpu $P --rotation 6d --name model_6d.hbeo --quiet

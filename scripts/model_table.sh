@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Issue 16: the reference model and every figure of the README's model table, in the order they were made.
+# The reference model and every figure of the README's model table, in the order they were made.
 # Choices are made on the validation objects (evaluate --split val, scripts/tune_verify.py); the test split
 # is evaluated once per chosen row, with two seeds to show how much the figures move.
-# About 2 h on a 2-core CPU (the 30-epoch training takes most of it). Usage: bash scripts/issue16_reference.sh [PY]
+# About 2 h on a 2-core CPU (the 30-epoch training takes most of it). Usage: bash scripts/model_table.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${1:-.venv/bin/python}
