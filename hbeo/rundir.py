@@ -200,11 +200,6 @@ class RunDir:
         """Metrics JSON of ``method`` under pose setting ``pose`` on this run's test views."""
         return self.path / f"eval_{_check_name('method', method)}_{_check_name('pose', pose)}.json"
 
-    def named_evaluation(self, name: str) -> Path:
-        """Metrics JSON of an evaluation outside the notebooks' protocol, ``eval_<name>.json``
-        (``scripts/model_table.sh`` writes ``test-ref``: the run's model on the whole test split)."""
-        return self.path / f"eval_{_check_name('evaluation name', name)}.json"
-
     def figure(self, name: str) -> Path:
         """A figure of a notebook, ``name`` like ``05_confusion``."""
         return self.path / f"{_check_name('figure name', name)}.png"

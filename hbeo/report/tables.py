@@ -227,12 +227,6 @@ def table2(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
     return pd.DataFrame(rows)
 
 
-def accuracy_summary(evals: list[dict]) -> pd.DataFrame:
-    """Accuracy (%) and query count of each evaluation, one row each."""
-    return pd.DataFrame([{"method": label(m), "accuracy (%)": 100 * m["accuracy"], "queries": m["n_queries"]}
-                         for m in evals]).set_index("method")
-
-
 def worse_than_chance(evals: list[dict]) -> list[str]:
     """Labels of the evaluations whose accuracy is not above chance (1 / number of classes)."""
     return [label(m) for m in evals if m["accuracy"] <= 1 / len(m["classes"])]
