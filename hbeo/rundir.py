@@ -173,6 +173,12 @@ class RunDir:
         return self.path / "models.json"
 
     @property
+    def history(self) -> Path:
+        """``docs/history/<run folder name>/``: metrics files of models this run no longer holds (earlier
+        configurations, ablations), kept for the model table and ``docs/history.md``; outside the run folder."""
+        return config.REPO_ROOT / "docs" / "history" / self.path.name
+
+    @property
     def model_table(self) -> Path:
         """``model_table.md``: that table, generated from ``models.json`` and the files it names."""
         return self.path / "model_table.md"
@@ -253,7 +259,3 @@ class RunDir:
         out["model"] = self.model.is_file()
         out.update({m: self.baseline(m).is_file() for m in BASELINE_FILES})
         return out
-
-    def evaluations(self) -> list[Path]:
-        """The metrics JSONs present, sorted."""
-        return sorted(self.path.glob("eval_*_*.json"))

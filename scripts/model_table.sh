@@ -8,12 +8,13 @@ cd "$(dirname "$0")/.."
 PY=${1:-.venv/bin/python}
 D=modelnet10-vox30
 R=results/cpu-$D
+H=docs/history/cpu-$D      # metrics of models the run folder no longer holds (RunDir.history; read by the model table)
 # 1. shape loss: the paper's coefficient loss against the voxel loss, 5 epochs each, compared on validation
 for v in coeffs voxels; do
   $PY -m hbeo train --dataset $D --profile cpu --rotation bins --augment-roll --epochs 5 --shape-loss $v \
       --name model_abl5_$v.hbeo --quiet
   $PY -m hbeo evaluate --model $R/model_abl5_$v.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
-      --out $R/eval_val-abl5-$v.json
+      --out $H/eval_val-abl5-$v.json
 done
 # 2. the reference model (voxel loss chosen), 30 epochs (the epoch count chosen on validation earlier)
 $PY -m hbeo train --dataset $D --profile cpu --rotation bins --augment-roll --shape-loss voxels --epochs 30 \
