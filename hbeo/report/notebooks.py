@@ -77,8 +77,8 @@ def clear_products(run) -> list[Path]:
     import shutil
     from hbeo.evaluation.protocol import EVALUATIONS
     run = RunDir.of(run)
-    gone = [*run.path.glob("*.hbeo"), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
-            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.path.glob("train_*")]
+    gone = [*run.model_files(), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
+            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.training_dirs()]
     out = []
     for p in gone:
         if p.is_dir():
