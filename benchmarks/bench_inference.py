@@ -51,8 +51,8 @@ def main():
                                                                               progress=False)
     rs = RenderSettings.from_profile(prof)
     K = rs.intrinsics
-    net = HBEONet(NetConfig(image_size=rs.image_size, n_coeffs=sub.dim_, conv_channels=tuple(prof.conv_channels),
-                            fc=tuple(prof.fc), kernel=prof.kernel, rotation=args.rotation))
+    net = HBEONet(NetConfig(image_size=rs.image_size, n_coeffs=sub.dim_, conv_channels=tuple(prof.network.conv_channels),
+                            fc=tuple(prof.network.fc), kernel=prof.network.kernel, rotation=args.rotation))
     # as fit_model writes it: the model's own camera, no re-centring (--recenter is an option)
     model = HBEO(net, sub, K, tr.classes, {"render": rs.to_dict(), "recenter": args.recenter}, args.precision)
     Rs, ts = rs.view_sampler.sample(32, np.random.default_rng(0))
@@ -64,7 +64,7 @@ def main():
     for i in range(args.repeat):
         stages.append(model.predict(depth[i % 32], K, rolls=args.rolls).timing_ms)
     med = {k: float(np.median([s[k] for s in stages])) for k in stages[0]}
-    print(f"{prof.name} network, {net.n_params():,} parameters, {prof.kernel}x{prof.kernel} kernels, "
+    print(f"{prof.name} network, {net.n_params():,} parameters, {prof.network.kernel}x{prof.network.kernel} kernels, "
           f"{K.width}x{K.height}, subspace dim {sub.dim_} ({name}), recenter {args.recenter}, pose {args.rotation}, "
           f"{args.precision}, rolls {args.rolls}, "
           f"torch threads {torch.get_num_threads()}")

@@ -174,10 +174,10 @@ def step_options(steps: int = 20) -> dict[str, float]:
     from hbeo.model.network import NetConfig, hbeo_loss
     from hbeo.rotations import matrix_to_axis_angle, uniform_so3
     p = _profile(24, 20)
-    cfg = NetConfig(image_size=tuple(p.image_size), n_classes=10, n_coeffs=60, conv_channels=tuple(p.conv_channels),
-                    fc=tuple(p.fc), kernel=p.kernel)
+    cfg = NetConfig(image_size=tuple(p.data.image_size), n_classes=10, n_coeffs=60, conv_channels=tuple(p.network.conv_channels),
+                    fc=tuple(p.network.fc), kernel=p.network.kernel)
     R = torch.from_numpy(uniform_so3(64, np.random.default_rng(0)).astype(np.float32))
-    batch = {"depth": torch.rand(64, 1, p.image_size[1], p.image_size[0]) * 2, "label": torch.randint(0, 10, (64,)),
+    batch = {"depth": torch.rand(64, 1, p.data.image_size[1], p.data.image_size[0]) * 2, "label": torch.randint(0, 10, (64,)),
              "rotation": R, "axis_angle": torch.from_numpy(matrix_to_axis_angle(R.numpy()).astype(np.float32)),
              "coeffs": torch.randn(64, 60)}
     out = {}

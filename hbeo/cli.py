@@ -207,7 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
     p.add_argument("--shape-loss", choices=("coeffs", "voxels"),
                    help="shape term: the standardized coefficient error (paper) or the completed grid's occupancy "
-                        "error through the basis (default: the profile's recipe, hbeo.config.Profile.recipe)")
+                        "error through the basis (default: the profile's recipe, hbeo.config.RecipeConfig.fit_kwargs)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
     p.add_argument("--rotation", choices=("axis_angle", "6d", "bins"),

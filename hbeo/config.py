@@ -17,56 +17,48 @@ Paths (environment variables override the defaults)
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
 @dataclass(frozen=True)
-class Profile:
-    """Sizes of one run. ``None`` means "all there is"."""
+class DataConfig:
+    """How much data a run uses and how its training images are made. ``None`` means "all there is"."""
 
-    name: str
     n_train_per_class: int | None   #: objects per class from the training split (procedural: generated)
     n_test_per_class: int | None    #: objects per class from the test split
     views_per_object: int           #: rendered depth images per training object
     image_size: tuple[int, int]     #: (width, height) of depth images, pixels
-    epochs: int                     #: HBEONet training epochs
-    batch_size: int
     workers: int                    #: worker processes for voxelization and rendering
-    conv_channels: tuple[int, int, int, int] = (32, 64, 128, 128)   #: HBEONet's four convolutions
-    fc: tuple[int, int, int] = (384, 256, 256)                       #: HBEONet's shared FC layers
-    kernel: int = 3                 #: convolution kernel size (the paper does not state it; 3 keeps ~15 M parameters)
-    lr: float = 1e-3                #: peak learning rate (AdamW)
     procedural_train_per_class: int = 400   #: procedural objects per class when n_train_per_class is None
-    #: Rotations in BEO's 3-DOF search grid (super-Fibonacci; 400 / 2,048 / 8,192 have a mean nearest-neighbour
-    #: spacing of 27, 15 and 10 degrees): the search costs ~5 ms per candidate at ~80 subspace dimensions on 2 cores.
-    beo_so3_grid: int = 2048
-    #: Test objects per class in BEO's 1-DOF and 3-DOF evaluations (its pose search costs up to a minute per
-    #: 3-DOF query on 2 cores); None: the same objects as every other method (``n_test_per_class``).
-    beo_1dof_test_per_class: int | None = None
-    beo_3dof_test_per_class: int | None = 1
-    needs_gpu: bool = False         #: the reproduction refuses to start without CUDA (unless HBEO_ALLOW_CPU=1)
-    #: The 3-D CNN baseline (:mod:`hbeo.baselines.voxcnn`): its three encoder widths, bottleneck width,
-    #: training epochs, batch size, peak learning rate, rendered views per training object made into
-    #: partial grids (None = all the rendered set has) and BCE weight of filled voxels.
-    voxcnn_channels: tuple[int, int, int] = (32, 64, 128)
-    voxcnn_bottleneck: int = 512
-    voxcnn_epochs: int = 20
-    voxcnn_batch_size: int = 64
-    voxcnn_lr: float = 1e-3
-    voxcnn_views_per_object: int | None = 32
-    voxcnn_pos_weight: float = 1.5
     #: Where HBEONet's training images come from (``python -m hbeo train --data``): ``memory`` (the rendered
     #: set, all in memory), ``shards`` (the rendered set read shard by shard) or ``stream`` (rendered on the
     #: fly, a fresh pose per object per pass; nothing rendered first); and, in ``stream``, the views rendered
     #: once per validation object (a fixed set).
     train_data: str = "memory"
     stream_val_views: int = 2
-    #: The training recipe of the run's model (notebook 04, and ``python -m hbeo train`` unless told
-    #: otherwise): HBEONet's pose output, roll augmentation and shape loss (``hbeo.model.fit``). The
-    #: default is the paper's; ``cpu`` uses what issue 16 chose on validation.
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """HBEONet's size (:class:`hbeo.model.network.NetConfig` takes these)."""
+
+    conv_channels: tuple[int, int, int, int] = (32, 64, 128, 128)   #: HBEONet's four convolutions
+    fc: tuple[int, int, int] = (384, 256, 256)                       #: HBEONet's shared FC layers
+    kernel: int = 3                 #: convolution kernel size (the paper does not state it; 3 keeps ~15 M parameters)
+
+
+@dataclass(frozen=True)
+class RecipeConfig:
+    """How the run's model is trained (notebook 04, and ``python -m hbeo train`` unless told otherwise)."""
+
+    epochs: int                     #: HBEONet training epochs
+    batch_size: int
+    lr: float = 1e-3                #: peak learning rate (AdamW)
+    #: HBEONet's pose output, roll augmentation and shape loss (``hbeo.model.fit``). The default is the
+    #: paper's; ``cpu`` uses the recipe chosen on the validation objects.
     rotation: str = "axis_angle"
     augment_roll: bool = False
     shape_loss: str = "coeffs"
@@ -75,42 +67,113 @@ class Profile:
     option_epochs: int | None = None
     #: Which of notebook 04's variants to train (``hbeo.lessons.training.OPTIONS``).
     options: tuple[str, ...] = ("paper", "6d", "6d_dist", "recipe")
-    #: The paired test protocol (:mod:`hbeo.evaluation.protocol`): query views per test object, the
-    #: same (object, view) pairs for every method (the searches of ``beo_3dof_test_per_class`` and
-    #: ``icp_test_per_class`` score the first view only); ICP's test objects per class (None: all).
-    eval_views: int = 1
-    icp_test_per_class: int | None = None
 
-    def recipe(self) -> dict:
-        """Keyword arguments of :func:`hbeo.model.fit.fit_model` for the run's model."""
+    def fit_kwargs(self) -> dict:
+        """Keyword arguments of :func:`hbeo.model.fit.fit_model` for the run's model (pose output,
+        roll augmentation, shape loss)."""
         return {"rotation": self.rotation, "augment_roll": self.augment_roll, "shape_loss": self.shape_loss}
 
+
+@dataclass(frozen=True)
+class BaselinesConfig:
+    """The baselines' sizes: BEO's pose search and the 3-D CNN (:mod:`hbeo.baselines.voxcnn`)."""
+
+    #: Rotations in BEO's 3-DOF search grid (super-Fibonacci; 400 / 2,048 / 8,192 have a mean nearest-neighbour
+    #: spacing of 27, 15 and 10 degrees): the search costs ~5 ms per candidate at ~80 subspace dimensions on 2 cores.
+    beo_so3_grid: int = 2048
+    #: The 3-D CNN baseline: its three encoder widths, bottleneck width, training epochs, batch size, peak
+    #: learning rate, rendered views per training object made into partial grids (None = all the rendered
+    #: set has) and BCE weight of filled voxels.
+    voxcnn_channels: tuple[int, int, int] = (32, 64, 128)
+    voxcnn_bottleneck: int = 512
+    voxcnn_epochs: int = 20
+    voxcnn_batch_size: int = 64
+    voxcnn_lr: float = 1e-3
+    voxcnn_views_per_object: int | None = 32
+    voxcnn_pos_weight: float = 1.5
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """The paired test protocol (:mod:`hbeo.evaluation.protocol`): query views per test object, the same
+    (object, view) pairs for every method (the searches of ``beo_3dof_test_per_class`` and
+    ``icp_test_per_class`` score the first view only)."""
+
+    eval_views: int = 1
+    #: Test objects per class in BEO's 1-DOF and 3-DOF evaluations (its pose search costs up to a minute per
+    #: 3-DOF query on 2 cores); None: the same objects as every other method (``data.n_test_per_class``).
+    beo_1dof_test_per_class: int | None = None
+    beo_3dof_test_per_class: int | None = 1
+    icp_test_per_class: int | None = None   #: ICP's test objects per class (None: all)
+
+
+#: Each profile group and its config class, in the order of :meth:`Profile.to_dict`.
+GROUPS = {"data": DataConfig, "network": NetworkConfig, "recipe": RecipeConfig, "baselines": BaselinesConfig,
+          "evaluation": EvaluationConfig}
+#: Which group holds each field (``prof.<group>.<field>``); :func:`get_profile` routes overrides by it.
+FIELD_GROUP = {f.name: g for g, cls in GROUPS.items() for f in fields(cls)}
+#: The flat field order of :meth:`Profile.to_dict` (the order the run manifests have always written).
+_FLAT_ORDER = ("name", "n_train_per_class", "n_test_per_class", "views_per_object", "image_size", "epochs",
+               "batch_size", "workers", "conv_channels", "fc", "kernel", "lr", "procedural_train_per_class",
+               "beo_so3_grid", "beo_1dof_test_per_class", "beo_3dof_test_per_class", "needs_gpu",
+               "voxcnn_channels", "voxcnn_bottleneck", "voxcnn_epochs", "voxcnn_batch_size", "voxcnn_lr",
+               "voxcnn_views_per_object", "voxcnn_pos_weight", "train_data", "stream_val_views", "rotation",
+               "augment_roll", "shape_loss", "option_epochs", "options", "eval_views", "icp_test_per_class")
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Sizes of one run, one small config per concern: ``prof.data``, ``prof.network``, ``prof.recipe``,
+    ``prof.baselines``, ``prof.evaluation``."""
+
+    name: str
+    data: DataConfig
+    recipe: RecipeConfig
+    network: NetworkConfig = NetworkConfig()
+    baselines: BaselinesConfig = BaselinesConfig()
+    evaluation: EvaluationConfig = EvaluationConfig()
+    needs_gpu: bool = False         #: the reproduction refuses to start without CUDA (unless HBEO_ALLOW_CPU=1)
+
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Every field by its own name, flat (the run manifest's ``profile_settings``)."""
+        flat = {"name": self.name, "needs_gpu": self.needs_gpu}
+        for g in GROUPS:
+            flat.update(asdict(getattr(self, g)))
+        return {k: flat[k] for k in _FLAT_ORDER}
 
 
 PROFILES: dict[str, Profile] = {
-    "ci": Profile("ci", n_train_per_class=6, n_test_per_class=3, views_per_object=8,
-                  image_size=(80, 60), epochs=8, batch_size=32, workers=1,
-                  conv_channels=(8, 16, 16, 16), fc=(64, 64, 64), beo_so3_grid=400,
-                  voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=64, voxcnn_epochs=3, voxcnn_batch_size=16,
-                  voxcnn_lr=3e-3, voxcnn_views_per_object=None),
+    "ci": Profile(
+        "ci",
+        data=DataConfig(n_train_per_class=6, n_test_per_class=3, views_per_object=8, image_size=(80, 60), workers=1),
+        recipe=RecipeConfig(epochs=8, batch_size=32),
+        network=NetworkConfig(conv_channels=(8, 16, 16, 16), fc=(64, 64, 64)),
+        baselines=BaselinesConfig(beo_so3_grid=400, voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=64,
+                                  voxcnn_epochs=3, voxcnn_batch_size=16, voxcnn_lr=3e-3,
+                                  voxcnn_views_per_object=None)),
     # cpu: every training object (ModelNet10: 3,991), few views each: object variety matters more
     # than views per object; small images keep an epoch of ~72k images near two minutes on 2 cores.
-    # The recipe (rotation bins, roll augmentation, voxel shape loss, 30 epochs) is issue 16's, chosen
-    # on the validation objects. Every test object, 3 paired views each; the slow searches (BEO 3-DOF,
+    # The recipe (rotation bins, roll augmentation, voxel shape loss, 30 epochs) is the one chosen on
+    # the validation objects. Every test object, 3 paired views each; the slow searches (BEO 3-DOF,
     # ICP) on the first view of 10 objects per class (100 queries, a subset of the same pairs).
-    "cpu": Profile("cpu", n_train_per_class=None, n_test_per_class=None, views_per_object=20,
-                   image_size=(80, 60), epochs=30, batch_size=64, workers=2,
-                   conv_channels=(32, 64, 128, 128), fc=(512, 256, 256), procedural_train_per_class=200,
-                   beo_3dof_test_per_class=10, voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=128,
-                   voxcnn_epochs=5, voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3,
-                   rotation="bins", augment_roll=True, shape_loss="voxels", option_epochs=2, options=("paper", "recipe"),
-                   eval_views=3, icp_test_per_class=10),
-    "full": Profile("full", n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
-                    image_size=(320, 240), epochs=40, batch_size=128, workers=8,     # the paper's network
-                    beo_so3_grid=8192, beo_1dof_test_per_class=20, beo_3dof_test_per_class=5, needs_gpu=True,
-                    train_data="stream"),
+    "cpu": Profile(
+        "cpu",
+        data=DataConfig(n_train_per_class=None, n_test_per_class=None, views_per_object=20, image_size=(80, 60),
+                        workers=2, procedural_train_per_class=200),
+        recipe=RecipeConfig(epochs=30, batch_size=64, rotation="bins", augment_roll=True, shape_loss="voxels",
+                            option_epochs=2, options=("paper", "recipe")),
+        network=NetworkConfig(conv_channels=(32, 64, 128, 128), fc=(512, 256, 256)),
+        baselines=BaselinesConfig(voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=128, voxcnn_epochs=5,
+                                  voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3),
+        evaluation=EvaluationConfig(eval_views=3, beo_3dof_test_per_class=10, icp_test_per_class=10)),
+    "full": Profile(      # the paper's network
+        "full",
+        data=DataConfig(n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
+                        image_size=(320, 240), workers=8, train_data="stream"),
+        recipe=RecipeConfig(epochs=40, batch_size=128),
+        baselines=BaselinesConfig(beo_so3_grid=8192),
+        evaluation=EvaluationConfig(beo_1dof_test_per_class=20, beo_3dof_test_per_class=5),
+        needs_gpu=True),
 }
 
 #: Procedural objects per class when a profile says "all" (the procedural source is unbounded).
@@ -118,7 +181,8 @@ PROCEDURAL_FULL = {"train": 400, "test": 100}
 
 
 def get_profile(name: str | Profile, **overrides) -> Profile:
-    """Profile by name (``ci``, ``cpu``, ``full``), with optional field overrides."""
+    """Profile by name (``ci``, ``cpu``, ``full``), with optional overrides: a field by its own name
+    (``epochs=3`` goes to ``recipe``), or a whole group (``recipe=RecipeConfig(...)``)."""
     if isinstance(name, Profile):
         prof = name
     else:
@@ -126,7 +190,16 @@ def get_profile(name: str | Profile, **overrides) -> Profile:
             prof = PROFILES[name]
         except KeyError:
             raise ValueError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}") from None
-    return replace(prof, **overrides) if overrides else prof
+    top = {k: v for k, v in overrides.items() if k not in FIELD_GROUP}
+    unknown = set(top) - {f.name for f in fields(Profile)}
+    if unknown:
+        raise ValueError(f"unknown profile field {sorted(unknown)}; expected one of "
+                         f"{', '.join(sorted([*FIELD_GROUP, *GROUPS, 'name', 'needs_gpu']))}")
+    for g in GROUPS:
+        mine = {k: v for k, v in overrides.items() if FIELD_GROUP.get(k) == g}
+        if mine:
+            top[g] = replace(top.get(g, getattr(prof, g)), **mine)
+    return replace(prof, **top) if top else prof
 
 
 def _find_upwards(relative: str, starts) -> Path | None:

@@ -96,7 +96,7 @@ def voxelize_to_file(profile, dataset: str, out, workers: int = 0, strict: bool 
     the report."""
     from hbeo.data.gridfile import write_gridfile
     prof = config.get_profile(profile)
-    res = write_gridfile(load_dataset(dataset, prof), out, workers=workers or prof.workers, strict=strict)
+    res = write_gridfile(load_dataset(dataset, prof), out, workers=workers or prof.data.workers, strict=strict)
     if res.failures:
         print(res.failure_report(), file=sys.stderr)
     return res.report()
@@ -163,7 +163,7 @@ class Run:
         import pandas as pd
         from hbeo.subspace import completion
         prof, run = self.profile, self.dir
-        sets = {s: build_gridset(self.dataset, self.records(s), s, workers=prof.workers) for s in ("train", "test")}
+        sets = {s: build_gridset(self.dataset, self.records(s), s, workers=prof.data.workers) for s in ("train", "test")}
         if components is not None:
             sub = ObjectSubspace(n_components=components)
         else:
@@ -202,7 +202,7 @@ class Run:
             recs = self.records(split)
             total += len(recs)
             try:
-                gs = build_gridset(self.dataset, recs, split, workers=workers or self.profile.workers)
+                gs = build_gridset(self.dataset, recs, split, workers=workers or self.profile.data.workers)
             except DataError as err:
                 self._failed("voxelize", failures + getattr(err, "failures", []), total, splits)
                 raise
@@ -226,7 +226,7 @@ class Run:
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     m = render_set(self.dataset, recs, split, self.dir.renders(split), settings, subspace=subspace,
-                                   workers=workers or self.profile.workers, objects_per_shard=objects_per_shard,
+                                   workers=workers or self.profile.data.workers, objects_per_shard=objects_per_shard,
                                    progress=progress, scheduler=scheduler)
             except DataError as err:
                 self._failed("render", failures + getattr(err, "failures", []), total, splits)
@@ -249,7 +249,7 @@ class Run:
         sub = self.subspace(progress)
         settings = settings or RenderSettings.from_profile(self.profile)
         return render_set(self.dataset, self.records(split), split, self.dir.renders(split), settings,
-                          subspace=sub, workers=self.profile.workers, progress=progress)
+                          subspace=sub, workers=self.profile.data.workers, progress=progress)
 
     def train(self, options: TrainOptions | None = None, progress: bool = True) -> Trained:
         """Train a model of this run (:func:`hbeo.model.fit.fit_model`) with the profile's recipe, overridden
@@ -264,7 +264,7 @@ class Run:
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler)
         main = distributed.world().main
         if main:                                          # rank 0 prepares the shared files, the others wait
-            if (opts.data or prof.train_data) == "stream":
+            if (opts.data or prof.data.train_data) == "stream":
                 self.subspace(progress)
             else:
                 self.renders("train", settings, progress)
@@ -274,7 +274,7 @@ class Run:
         model, path = fit_model(self.dir, prof, opts, dataset=self.dataset, settings=settings, progress=progress)
         distributed.barrier()                             # the model file is complete before any process goes on
         if main:
-            info = {"model": path.name, "recipe": opts.recipe(prof), "epochs": opts.epochs or prof.epochs,
+            info = {"model": path.name, "recipe": opts.recipe(prof), "epochs": opts.epochs or prof.recipe.epochs,
                     "resumed_from_step": resumed, "n_params": model.net.n_params()}
             if opts.changed():
                 info["options"] = opts.changed()

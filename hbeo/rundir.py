@@ -9,15 +9,22 @@ other module and every notebook asks a :class:`RunDir` for a path::
     subspace_summary.json        subspace: what ``python -m hbeo subspace`` measured
     render_<split>/              render: the rendered depth set, manifest.json written last (notebook 03)
     model.hbeo                   model: the trained HBEO model file (notebook 04); others model_<name>.hbeo
-    train_<model stem>/          model: checkpoint.pt and train_log.csv of that model's training
+    train_<model stem>/          model: checkpoint.pt, train_log.csv and provenance.json of that model's training
     beo.npz, icp.npz, voxcnn.hbeo  baselines: fitted baseline files
     partial_train*.npz           baselines: the 3-D CNN's cached partial training grids
-    eval_<method>_<pose>.json    reproduction: metrics of one method on the test views
-    eval_<name>.json             reproduction: other evaluations, named by whoever ran them
-    NN_<name>.png / .csv / .md   reproduction: the notebooks' figures and tables
-    NN_<name>.ipynb              reproduction: the executed notebooks
-    manifest.json                reproduction: provenance (commit, versions, hardware, wall times)
+    eval_<method>_<pose>.json    evaluation: metrics of one method on the test views
+    eval_<name>.json             evaluation: other evaluations, named by whoever ran them
+    validation.csv, verify_sweep.csv  evaluation: validation runs and verify settings tried
+    models.json, model_table.md  report: the README's model table, its rows and the table
+    NN_<name>.png / .csv / .md   report: the notebooks' figures and tables (names: hbeo.report.tables)
+    NN_<name>.ipynb              report: the executed notebooks
+    manifest.json                report: provenance (commit, versions, hardware, wall times)
+    REPRODUCTION.md              report: the paper's numbers beside the run's
     failures.json                batch steps: the objects each left out, ``[{file, reason, step, ...}]``
+
+Metrics files of models the run no longer holds live outside it, in ``docs/history/<run folder name>/``
+(:attr:`RunDir.history`). The rendered set's shards are :mod:`hbeo.render.renderset`'s own layout, and
+the book (:mod:`hbeo.report.book`) lists the notebooks, figures and tables a run holds by pattern.
 
 Complete means "written to the end": every file here is written through a temporary name and
 renamed (:mod:`hbeo.storage`), and a rendered set counts only once its manifest exists, so
@@ -46,6 +53,7 @@ MODEL_SUFFIX = ".hbeo"
 DEFAULT_MODEL = f"model{MODEL_SUFFIX}"
 CHECKPOINT = "checkpoint.pt"
 TRAIN_LOG = "train_log.csv"
+PROVENANCE = "provenance.json"
 #: Written by a data-parallel run: every rank's final weights digest (they must agree).
 RANKS = "ranks.json"
 RENDER_MANIFEST = "manifest.json"
@@ -173,6 +181,12 @@ class RunDir:
         return self.path / "models.json"
 
     @property
+    def history(self) -> Path:
+        """``docs/history/<run folder name>/``: metrics files of models this run no longer holds (earlier
+        configurations, ablations), kept for the model table and ``docs/history.md``; outside the run folder."""
+        return config.REPO_ROOT / "docs" / "history" / self.path.name
+
+    @property
     def model_table(self) -> Path:
         """``model_table.md``: that table, generated from ``models.json`` and the files it names."""
         return self.path / "model_table.md"
@@ -182,6 +196,22 @@ class RunDir:
 
     def train_log(self, model_file: str | os.PathLike) -> Path:
         return self.training(model_file) / TRAIN_LOG
+
+    def training_provenance(self, model_file: str | os.PathLike) -> Path:
+        """How the model written to ``model_file`` was trained (recipe, epochs, resumption), JSON."""
+        return self.training(model_file) / PROVENANCE
+
+    def training_provenances(self) -> list[Path]:
+        """Every trained model's :meth:`training_provenance` present, sorted."""
+        return sorted(self.path.glob(f"train_*/{PROVENANCE}"))
+
+    def model_files(self) -> list[Path]:
+        """Every model file (``*.hbeo``: the run's models and the 3-D CNN baseline) present, sorted."""
+        return sorted(self.path.glob(f"*{MODEL_SUFFIX}"))
+
+    def training_dirs(self) -> list[Path]:
+        """Every model's :meth:`training` folder present, sorted."""
+        return sorted(p for p in self.path.glob("train_*") if p.is_dir())
 
     # --- baselines ---
     def baseline(self, method: str) -> Path:
@@ -200,11 +230,6 @@ class RunDir:
         """Metrics JSON of ``method`` under pose setting ``pose`` on this run's test views."""
         return self.path / f"eval_{_check_name('method', method)}_{_check_name('pose', pose)}.json"
 
-    def named_evaluation(self, name: str) -> Path:
-        """Metrics JSON of an evaluation outside the notebooks' protocol, ``eval_<name>.json``
-        (``scripts/issue16_reference.sh`` writes ``test-ref``: the run's model on the whole test split)."""
-        return self.path / f"eval_{_check_name('evaluation name', name)}.json"
-
     def figure(self, name: str) -> Path:
         """A figure of a notebook, ``name`` like ``05_confusion``."""
         return self.path / f"{_check_name('figure name', name)}.png"
@@ -222,6 +247,11 @@ class RunDir:
     @property
     def manifest(self) -> Path:
         return self.path / "manifest.json"
+
+    @property
+    def reproduction(self) -> Path:
+        """``REPRODUCTION.md``: the run's report (:mod:`hbeo.report.reproduction_md`)."""
+        return self.path / "REPRODUCTION.md"
 
     @property
     def failures(self) -> Path:
@@ -258,7 +288,3 @@ class RunDir:
         out["model"] = self.model.is_file()
         out.update({m: self.baseline(m).is_file() for m in BASELINE_FILES})
         return out
-
-    def evaluations(self) -> list[Path]:
-        """The metrics JSONs present, sorted."""
-        return sorted(self.path.glob("eval_*_*.json"))

@@ -11,6 +11,9 @@ in one temporary :class:`~hbeo.rundir.RunDir`, stage by stage and only as far as
     ci_model        the model file trained by the CLI (one epoch, in a child process, so no
                     training threads stay in this one), its path
 
+and ``tiny_model``, the one builder of a small untrained HBEO (32x24 camera, 4-channel network)
+for the tests that need a valid model but no trained one (model files, prediction, fuzzing).
+
 Each stage builds on the previous one, so a test that needs only grids does not train. The folder
 is shared: tests read it and never write into it; a test that writes (evaluate fits baselines
 beside the model, the 3-D CNN caches its partial grids) works on a ``copy_run`` copy. Whether
@@ -162,3 +165,42 @@ def copy_run():
                 (shutil.copytree if p.is_dir() else shutil.copy2)(p, dest / p.name)
         return RunDir(dest)
     return copy
+
+
+# ------------------------------------------------------------------ the tiny untrained model
+
+def box_grids(n: int = 8) -> np.ndarray:
+    """``n`` 30^3 boxes of varied size (the tiny model's training shapes; classes alternate)."""
+    grids = np.zeros((n, 30, 30, 30), bool)
+    for i, g in enumerate(grids):
+        a = 8 + i % 4
+        g[a:30 - a, 10:20, a:14 + i] = True
+    return grids
+
+
+def build_tiny_model(settings, classes=("chair", "table"), subspace=None, mean_grids=None):
+    """An untrained HBEO with ``settings`` (a dict, or a function of the subspace giving one): a 2-component subspace of :func:`box_grids` (or ``subspace``), a 32x24
+    Kinect-like camera, conv (4, 4, 4, 4) and FC (8, 8, 8) layers, weights from torch seed 0; with
+    ``mean_grids`` the coefficient head's bias is their mean projection (a non-empty mean shape)."""
+    import torch
+    from hbeo.conventions import Intrinsics
+    from hbeo.model.inference import HBEO
+    from hbeo.model.network import HBEONet, NetConfig
+    from hbeo.subspace.basis import ObjectSubspace
+    if subspace is None:
+        subspace = ObjectSubspace(n_components=2).fit(box_grids(), np.arange(8) % 2, tuple(classes), progress=False)
+    torch.manual_seed(0)
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=len(classes), n_coeffs=subspace.dim_,
+                            conv_channels=(4, 4, 4, 4), fc=(8, 8, 8)))
+    if mean_grids is not None:
+        with torch.no_grad():
+            net.coeff_head.bias.copy_(torch.from_numpy(subspace.project(mean_grids).mean(0)))
+    settings = settings(subspace) if callable(settings) else settings
+    return HBEO(net, subspace, Intrinsics.kinect(32, 24), tuple(classes), settings)
+
+
+@pytest.fixture(scope="session")
+def tiny_model():
+    """The builder of a small untrained HBEO, :func:`build_tiny_model` (call it with the settings,
+    classes and subspace a test needs; every call gives a fresh model)."""
+    return build_tiny_model

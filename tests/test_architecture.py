@@ -146,3 +146,49 @@ def test_per_profile_numbers_live_only_in_config():
     hits = [f"{p.relative_to(PKG.parent)}:{i}: {line.strip()}" for p, name in _modules() if name != "hbeo.config"
             for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert not hits, "per-profile numbers outside hbeo/config.py:\n" + "\n".join(hits)
+
+
+def _named_modules(package: str, doc: str) -> set[str]:
+    """Modules of ``hbeo.<package>`` the docstring refers to as ``:mod:`~hbeo.<package>.<module>``` (or
+    without the ``~``)."""
+    return set(re.findall(rf":mod:`~?hbeo\.{package}\.(\w+)`", doc))
+
+
+@pytest.mark.parametrize("package", _subpackages())
+def test_package_docstrings_list_every_module(package):
+    """Each subpackage's docstring names every module the folder holds (a :mod: reference), and only those:
+    the docstring is the package's table of contents, so it must not fall behind the folder."""
+    init = PKG / package / "__init__.py"
+    doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+    modules = {p.stem for p in (PKG / package).glob("*.py") if p.stem != "__init__"}
+    named = _named_modules(package, doc)
+    assert not modules - named, f"hbeo/{package}/__init__.py does not name {sorted(modules - named)}"
+    assert not named - modules, f"hbeo/{package}/__init__.py names modules that do not exist: {sorted(named - modules)}"
+
+
+def test_the_docstring_check_sees_a_missing_module():
+    assert _named_modules("data", "the grids (:mod:`~hbeo.data.voxel`, :mod:`hbeo.data.gridset`)") == {"voxel",
+                                                                                                     "gridset"}
+    assert _named_modules("data", "procedural objects (hbeo.data.procedural)") == set()
+
+
+def _architecture_rows() -> list[list[str]]:
+    text = (PKG.parent / "README.md").read_text()
+    section = text[text.index("## Architecture"):text.index("\n## ", text.index("## Architecture") + 1)]
+    return [[c.strip() for c in line.strip("|").split("|")] for line in section.splitlines()
+            if line.startswith("| ") and not line.startswith("| layer") and not line.startswith("| ---")]
+
+
+def test_readme_architecture_table_is_the_code_s():
+    """The README's layer table names every layer in order, and every type and function it names exists."""
+    rows = _architecture_rows()
+    firsts = [r[0] for r in rows]
+    named = [next((layer for layer in LAYERS if f"`hbeo/{layer}/`" in c or f"`hbeo/{layer}.py`" in c
+                   or c.startswith(layer)), None) for c in firsts]
+    assert named == LAYERS, f"the README's architecture table lists {named}, the layers are {LAYERS}"
+    source = "\n".join(p.read_text() for p in PKG.rglob("*.py"))
+    for row in rows:
+        for name in re.findall(r"`([\w.]+)", row[2]):
+            leaf = name.split(".")[-1]
+            assert re.search(rf"^\s*(def|class) {leaf}\b|^{leaf}\s*=", source, re.M), \
+                f"README's architecture table names {name}, which the package does not define"

@@ -32,7 +32,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from hypothesis import HealthCheck, event, given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -44,9 +43,7 @@ from hbeo.data.meshio import read_mesh
 from hbeo.data.voxel import voxelize
 from hbeo.errors import HBEOError
 from hbeo.model.inference import HBEO
-from hbeo.model.network import HBEONet, NetConfig
 from hbeo.model.depthfile import parse_intrinsics, read_depth
-from hbeo.subspace.basis import ObjectSubspace
 
 K = Intrinsics.kinect(32, 24)
 K_TEXT = f"{K.fx},{K.fy},{K.cx},{K.cy}"
@@ -88,18 +85,10 @@ def assert_both_sides(seen: collections.Counter, cli: bool) -> None:
 # ------------------------------------------------------------------ the tiny model
 
 @pytest.fixture(scope="module")
-def model_bytes(tmp_path_factory) -> bytes:
-    """A valid HBEO model file (two classes, 32x24 images, untrained), as bytes."""
-    grids = np.zeros((8, 30, 30, 30), bool)
-    for i, g in enumerate(grids):
-        a = 8 + i % 4
-        g[a:30 - a, 10:20, a:14 + i] = True
-    sub = ObjectSubspace(n_components=2).fit(grids, np.arange(8) % 2, ("chair", "table"), progress=False)
-    torch.manual_seed(0)
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
-                            fc=(8, 8, 8)))
-    model = HBEO(net, sub, K, sub.classes_, {"ref_distance": 1.7, "coeff_mean": np.zeros(sub.dim_),
-                                             "coeff_std": np.ones(sub.dim_), "profile": "ci"})
+def model_bytes(tmp_path_factory, tiny_model) -> bytes:
+    """A valid HBEO model file (two classes, 32x24 images, untrained: conftest's tiny model), as bytes."""
+    model = tiny_model(lambda sub: {"ref_distance": 1.7, "coeff_mean": np.zeros(sub.dim_),
+                                     "coeff_std": np.ones(sub.dim_), "profile": "ci"})
     return model.save(tmp_path_factory.mktemp("fuzz") / "model.hbeo").read_bytes()
 
 

@@ -15,17 +15,12 @@ N_CLASSES = 10                                 #: the ci run's classes (ModelNet
 
 
 @pytest.fixture(scope="module")
-def model(ci_grids, ci_subspace):
-    """An untrained small network with the ci run's subspace and classes (conftest)."""
-    gs, sub = ci_grids["train"], ci_subspace
+def model(ci_grids, ci_subspace, tiny_model):
+    """conftest's untrained tiny model with the ci run's subspace and classes, its mean-shape
+    coefficient non-empty."""
+    gs = ci_grids["train"]
     assert len(gs.classes) == N_CLASSES
-    torch.manual_seed(0)
-    K = Intrinsics.kinect(32, 24)
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=N_CLASSES, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
-                            fc=(8, 8, 8)))
-    with torch.no_grad():                      # make the mean-shape coefficient come out non-empty
-        net.coeff_head.bias.copy_(torch.from_numpy(sub.project(gs.grids).mean(0)))
-    return HBEO(net, sub, K, gs.classes, {"ref_distance": 1.7})
+    return tiny_model({"ref_distance": 1.7}, classes=gs.classes, subspace=ci_subspace, mean_grids=gs.grids)
 
 
 def blob_depth(K, z=1.7):

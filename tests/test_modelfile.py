@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import safetensors.torch
 import torch
+from conftest import box_grids
 
 from hbeo.baselines.voxcnn import VoxCNN, VoxCNNBaseline, VoxCNNConfig
 from hbeo.conventions import Intrinsics
 from hbeo.errors import DataError
 from hbeo.model import modelfile as MF
 from hbeo.model.inference import HBEO
-from hbeo.model.network import HBEONet, NetConfig
 from hbeo.storage import write_npz
 from hbeo.subspace.basis import ObjectSubspace
 
@@ -29,20 +29,11 @@ K = Intrinsics.kinect(32, 24)
 # load them dozens of times, and need no trained network (the ci model takes ~10 s to train).
 
 @pytest.fixture(scope="module")
-def hbeo_model():
+def hbeo_model(tiny_model):
+    """conftest's tiny model, its mean shape non-empty (boxes of varied size, two classes)."""
     rng = np.random.default_rng(0)
-    grids = np.zeros((8, 30, 30, 30), bool)
-    for i, g in enumerate(grids):                      # boxes of varied size, two classes
-        a, b = 8 + i % 4, 14 + i
-        g[a:30 - a, 10:20, a:b] = True
-    sub = ObjectSubspace(n_components=2).fit(grids, np.arange(8) % 2, ("chair", "table"), progress=False)
-    torch.manual_seed(0)
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
-                            fc=(8, 8, 8)))
-    with torch.no_grad():
-        net.coeff_head.bias.copy_(torch.from_numpy(sub.project(grids).mean(0)))
-    return HBEO(net, sub, K, sub.classes_, {"ref_distance": 1.7, "coeff_mean": rng.normal(size=sub.dim_),
-                                            "coeff_std": np.ones(sub.dim_), "profile": "ci"})
+    return tiny_model(lambda sub: {"ref_distance": 1.7, "coeff_mean": rng.normal(size=sub.dim_),
+                                   "coeff_std": np.ones(sub.dim_), "profile": "ci"}, mean_grids=box_grids())
 
 
 @pytest.fixture(scope="module")

@@ -86,3 +86,24 @@ def test_reproduction_md_is_generated_from_the_committed_run():
          "--out paper/REPRODUCTION.md")
     for link in re.findall(r"\]\(([^)#]+)\)", out.read_text()):
         assert (out.parent / link).exists(), f"REPRODUCTION.md links to a missing file: {link}"
+
+
+def test_deviations_say_what_the_run_used(tmp_path):
+    """The deviations are built from the run's manifest and dataset tables, never ModelNet10's facts typed
+    into every run: the reference run's, and a procedural ci-sized run's."""
+    import json
+    import pandas as pd
+    from hbeo import config
+    text = "\n".join(report.deviations(json.loads(RUN.manifest.read_text()), RUN))
+    assert "907 of 908 test grids: one is empty" in text and "2048 rotations" in text and "about 15° apart" in text
+    run = RunDir(tmp_path / "run").create()
+    counts = pd.DataFrame({"train": [6, 6], "test": [3, 3], "train (run)": [6, 6], "test (run)": [3, 3]},
+                          index=pd.Index(["chair", "total"], name="class"))
+    counts.to_csv(run.table("01_class_counts"))
+    man = {"dataset": "procedural", "profile_settings": config.get_profile("ci").to_dict(),
+           "training": {"model.hbeo": {"recipe": config.get_profile("ci").recipe.fit_kwargs()}}}
+    ci = "\n".join(report.deviations(man, run))
+    assert "907" not in ci and "ModelNet10 as" not in ci and "Procedural objects" in ci
+    assert "6 training and 3 test objects" in ci and "400 rotations" in ci and "about 27° apart" in ci
+    assert "uses the paper's recipe" in ci and "chosen on validation" not in ci
+    assert "view 0 of the first 1 and all test objects" in ci                # ci: ICP on every test object

@@ -261,7 +261,7 @@ def test_settings_from_profile_round_trip():
     assert s.image_size == (80, 60) and s.views_per_object == 20 and s.sampler == "upright" and s.seed == 0
     assert RenderSettings.from_dict(json.loads(json.dumps(s.to_dict()))) == s
     assert s.intrinsics == C.Intrinsics.kinect(80, 60)
-    assert config.get_profile("ci").views_per_object == RenderSettings.from_profile("ci").views_per_object
+    assert config.get_profile("ci").data.views_per_object == RenderSettings.from_profile("ci").views_per_object
 
 
 def test_view_arrays_keep_views_that_show_nothing(rendered, monkeypatch):

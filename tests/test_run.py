@@ -72,9 +72,9 @@ def test_stages_skip_what_the_run_folder_holds(ci_render, ci_run, copy_run, tmp_
 
 def test_train_options_fill_the_recipe_from_the_profile_and_report_what_changed():
     prof = config.get_profile("ci")
-    assert TrainOptions().recipe(prof) == prof.recipe() and TrainOptions().changed() == {}
+    assert TrainOptions().recipe(prof) == prof.recipe.fit_kwargs() and TrainOptions().changed() == {}
     opts = TrainOptions(rotation="bins", augment_roll=False, view=ViewOptions(True, 1.7), seed=3)
-    assert opts.recipe(prof) == {**prof.recipe(), "rotation": "bins", "augment_roll": False}
+    assert opts.recipe(prof) == {**prof.recipe.fit_kwargs(), "rotation": "bins", "augment_roll": False}
     assert opts.changed() == {"rotation": "bins", "augment_roll": False, "seed": 3,
                               "view": {"recenter": True, "ref_distance": 1.7}}
     with pytest.raises(Exception):

@@ -11,13 +11,11 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 from PIL import Image
 
 from hbeo.conventions import Intrinsics
 from hbeo.errors import DataError
 from hbeo.model.inference import HBEO
-from hbeo.model.network import HBEONet, NetConfig
 from hbeo.model.preprocess import to_model_view
 from hbeo.model.depthfile import parse_intrinsics, read_depth
 from hbeo.subspace.basis import ObjectSubspace
@@ -26,17 +24,15 @@ K_MODEL = Intrinsics.kinect(32, 24)
 
 
 @pytest.fixture(scope="module")
-def tiny():
-    """Untrained HBEO on a 32x24 camera, no recentring, trained (nominally) at 1.4..2.0 m."""
+def tiny(tiny_model):
+    """conftest's untrained tiny HBEO (32x24 camera), its own shapes, no recentring, trained
+    (nominally) at 1.4..2.0 m."""
     g = np.zeros((8, 30, 30, 30), bool)
     for i in range(8):
         g[i, 5:25 - i, 5:25, 5:20 + i] = True
     sub = ObjectSubspace(n_components=2).fit(g, np.array([0, 1] * 4), ("bathtub", "bed"), progress=False)
-    torch.manual_seed(0)
-    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=2, n_coeffs=sub.dim_, conv_channels=(4, 4, 4, 4),
-                            fc=(8, 8, 8)))
-    return HBEO(net, sub, K_MODEL, ("bathtub", "bed"),
-                {"recenter": False, "render": {"distance": [1.4, 2.0], "object_size": 1.0}})
+    return tiny_model({"recenter": False, "render": {"distance": [1.4, 2.0], "object_size": 1.0}},
+                      classes=("bathtub", "bed"), subspace=sub)
 
 
 def box(K, rows, cols, z=1.7):

@@ -105,7 +105,7 @@ def test_stream_draws_fresh_poses_each_epoch_and_a_fixed_validation_set(sources)
     st, mem = sources["stream"], sources["memory"]
     prof = config.get_profile("ci")
     n_val_objects = len(np.unique([mem.val[i]["object_index"] for i in range(len(mem.val))]))
-    assert len(st.val) == n_val_objects * prof.stream_val_views
+    assert len(st.val) == n_val_objects * prof.data.stream_val_views
     assert len(st.train) == len(mem.train)            # one pass per rendered view
     cfg = TrainConfig(batch_size=4, seed=0)
 

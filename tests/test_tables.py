@@ -107,10 +107,13 @@ def test_tables_written_into_the_run_feed_the_report(evals, tmp_path):
     from hbeo.rundir import RunDir
     run = RunDir(tmp_path / "run").create()
     t1 = tables.table1(evals, tables.paper_table("table1_classification"))
-    assert tables.save_csv(t1, run, "05_table1") == run.table("05_table1")
+    assert tables.TABLE1 == "05_table1"                                      # the committed runs' file names
+    paths = tables.save_table(t1, run, tables.TABLE1, note="\n\nnote\n")
+    assert paths == (run.table("05_table1"), run.table("05_table1", "md"))
     assert pd.read_csv(run.table("05_table1")).shape == t1.shape
-    tables.save_markdown(t1, run, "05_table1", note="\n\nnote\n")
     assert run.table("05_table1", "md").read_text() == tables.to_markdown(t1) + "\n\nnote\n"
+    tables.save_table(t1, run, "wide", markdown=t1.head(1))                 # the Markdown can show another view
+    assert run.table("wide", "md").read_text() == tables.to_markdown(t1.head(1))
     assert not list(run.path.glob(".*.tmp"))                                 # written through temporary names
     out = write_reproduction(run, tmp_path / "paper" / "REPRODUCTION.md")
     text = out.read_text()

@@ -15,7 +15,7 @@ from hbeo.subspace.metrics import iou
 from hbeo.subspace.partial import depth_to_partial
 from hbeo.render.torch_datasets import load_shard
 
-TEST_EPOCHS = config.get_profile("ci").voxcnn_epochs      #: the ci profile as is (3 epochs, seconds each)
+TEST_EPOCHS = config.get_profile("ci").baselines.voxcnn_epochs      #: the ci profile as is (3 epochs, seconds each)
 
 
 # ------------------------------------------------------------------ fixtures (the session's ci run)
@@ -90,7 +90,7 @@ def test_network_shapes_and_config():
         V.VoxCNNConfig(channels=(4, 8))
     # every profile builds and is small enough for a CPU
     for name, prof in config.PROFILES.items():
-        n = V.VoxCNN(V.VoxCNNConfig(channels=prof.voxcnn_channels, bottleneck=prof.voxcnn_bottleneck)).n_params()
+        n = V.VoxCNN(V.VoxCNNConfig(channels=prof.baselines.voxcnn_channels, bottleneck=prof.baselines.voxcnn_bottleneck)).n_params()
         assert n < 20_000_000, name
 
 

@@ -77,7 +77,7 @@ def load_method(method: str, run, profile="cpu", progress: bool = True, max_step
         return _named(cls.load(path), method)
     train = GridSet.load(run.grids("train"))
     if method == "beo":
-        m = BEO(ObjectSubspace.load(run.subspace), so3_grid=config.get_profile(profile).beo_so3_grid)
+        m = BEO(ObjectSubspace.load(run.subspace), so3_grid=config.get_profile(profile).baselines.beo_so3_grid)
     else:
         m = ICPBaseline()
     m = m.fit(train.grids, train.labels, train.classes)

@@ -405,12 +405,12 @@ def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progres
     None = torch's setting; see :func:`hbeo.model.loop.cpu_threads`)."""
     run = RunDir.of(run)
     prof = config.get_profile(profile)
-    data = partial_training_set(run, prof.voxcnn_views_per_object, progress=progress)
+    data = partial_training_set(run, prof.baselines.voxcnn_views_per_object, progress=progress)
     tr, va = data.split(val_fraction, seed)
-    task = VoxCNNTask(VoxCNNConfig(channels=prof.voxcnn_channels, n_classes=len(data.classes),
-                                   bottleneck=prof.voxcnn_bottleneck), pos_weight=prof.voxcnn_pos_weight)
-    tc = TrainConfig(epochs=int(epochs or prof.voxcnn_epochs), batch_size=prof.voxcnn_batch_size, lr=prof.voxcnn_lr,
-                     warmup_steps=min(100, max(1, len(tr) // prof.voxcnn_batch_size)), seed=seed,
+    task = VoxCNNTask(VoxCNNConfig(channels=prof.baselines.voxcnn_channels, n_classes=len(data.classes),
+                                   bottleneck=prof.baselines.voxcnn_bottleneck), pos_weight=prof.baselines.voxcnn_pos_weight)
+    tc = TrainConfig(epochs=int(epochs or prof.baselines.voxcnn_epochs), batch_size=prof.baselines.voxcnn_batch_size, lr=prof.baselines.voxcnn_lr,
+                     warmup_steps=min(100, max(1, len(tr) // prof.baselines.voxcnn_batch_size)), seed=seed,
                      max_steps=max_steps, threads=threads, progress=progress,
                      data={"views_per_object": int(data.meta["views_per_object"]), "val_fraction": val_fraction})
     path = run.baseline("voxcnn")

@@ -294,8 +294,8 @@ def get_dataset(name: str, profile=None, **kwargs) -> Dataset:
     if name == "procedural":
         if profile is not None:
             prof = config.get_profile(profile)
-            kwargs.setdefault("n_train", prof.n_train_per_class or prof.procedural_train_per_class)
-            kwargs.setdefault("n_test", prof.n_test_per_class or config.PROCEDURAL_FULL["test"])
+            kwargs.setdefault("n_train", prof.data.n_train_per_class or prof.data.procedural_train_per_class)
+            kwargs.setdefault("n_test", prof.data.n_test_per_class or config.PROCEDURAL_FULL["test"])
         return ProceduralDataset(**kwargs)
     if name == "modelnet10":
         return ModelNet10Dataset(**kwargs)
@@ -310,7 +310,7 @@ def get_dataset(name: str, profile=None, **kwargs) -> Dataset:
 def select(dataset: Dataset, split: str, profile=None) -> list[ObjectRecord]:
     """The records of ``split`` a run with ``profile`` uses (first n per class, or all)."""
     prof = config.get_profile(profile) if profile is not None else None
-    n = None if prof is None else (prof.n_train_per_class if split == "train" else prof.n_test_per_class)
+    n = None if prof is None else (prof.data.n_train_per_class if split == "train" else prof.data.n_test_per_class)
     return dataset.records(split=split, per_class=n)
 
 # --------------------------------------------------------------------------- the validation split

@@ -287,7 +287,7 @@ def run_gridsets(run, ds: Dataset, prof, progress: bool = True, rebuild: bool = 
             out[split] = GridSet.load(path)
             continue
         try:
-            out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.workers,
+            out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.data.workers,
                                        progress=progress)
         except DataError as err:
             run.write_failures("voxelize", getattr(err, "failures", []), splits=[split])

@@ -272,14 +272,3 @@ def wide(long: pd.DataFrame) -> pd.DataFrame:
     out = pd.DataFrame(rows).T
     out.index.name = "method"
     return out.reset_index()
-
-
-def per_class_accuracy(evals: list[dict], classes) -> pd.DataFrame:
-    """Accuracy (%) per class (columns) of each classifying evaluation (rows; settings given the true
-    class are left out)."""
-    rows = {}
-    for m in evals:
-        if not m.get("given_class"):
-            rows[label(m)] = {c: 100 * m["per_class"][c]["accuracy"] if c in m["per_class"] else np.nan
-                              for c in classes}
-    return pd.DataFrame(rows).T

@@ -62,11 +62,11 @@ def eval_plan(profile, method: str, pose: str) -> tuple[int | None, int]:
     profile's test split with ``eval_views`` views, or for the slow searches (``beo_1dof_test_per_class``,
     ``beo_3dof_test_per_class``, ``icp_test_per_class``) the first objects of each class, view 0 only."""
     prof = config.get_profile(profile)
-    fewer = {("beo", "1dof"): prof.beo_1dof_test_per_class, ("beo", "3dof"): prof.beo_3dof_test_per_class,
-             ("icp", "3dof"): prof.icp_test_per_class, ("icp", "1dof"): prof.icp_test_per_class}.get((method, pose))
-    test_n = prof.n_test_per_class
+    fewer = {("beo", "1dof"): prof.evaluation.beo_1dof_test_per_class, ("beo", "3dof"): prof.evaluation.beo_3dof_test_per_class,
+             ("icp", "3dof"): prof.evaluation.icp_test_per_class, ("icp", "1dof"): prof.evaluation.icp_test_per_class}.get((method, pose))
+    test_n = prof.data.n_test_per_class
     if fewer is None or (test_n is not None and fewer >= test_n):
-        return test_n, prof.eval_views
+        return test_n, prof.evaluation.eval_views
     return fewer, 1
 
 
@@ -155,7 +155,7 @@ def evaluate_validation(model, run, progress: bool = True) -> dict:
     objects (training objects its training held out, :func:`hbeo.data.datasets.validation_records`) with
     the profile's ``eval_views`` query views, not cached: where options are compared, never on the test split."""
     from hbeo.evaluation.evaluate import evaluate_model
-    return evaluate_model(model, run.dataset, split="val", views=run.profile.eval_views, seed=SEED, progress=progress)
+    return evaluate_model(model, run.dataset, split="val", views=run.profile.evaluation.eval_views, seed=SEED, progress=progress)
 
 
 def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:

@@ -79,7 +79,7 @@ def predictions_figure(model, ds, view_sampler, n: int = 5, seed: int = 1):
     return fig
 
 
-#: The paper's training recipe (:meth:`hbeo.config.Profile.recipe`'s keys).
+#: The paper's training recipe (:meth:`hbeo.config.RecipeConfig.fit_kwargs`'s keys).
 PAPER_RECIPE = {"rotation": "axis_angle", "augment_roll": False, "shape_loss": "coeffs"}
 #: The variants notebook 04 can train (a profile's ``options`` picks them): the paper's recipe, the 6-D
 #: rotation output, 6-D with the distance-insensitive input, and the profile's own recipe.
@@ -95,16 +95,16 @@ def option_variants(run, epochs: int | None = None, progress: bool = True) -> pd
     from hbeo.model.fit import TrainOptions, ViewOptions
     from hbeo.evaluation.protocol import evaluate_validation
     prof = run.profile
-    n = epochs or prof.option_epochs or prof.epochs
+    n = epochs or prof.recipe.option_epochs or prof.recipe.epochs
     specs = {"paper": ("paper: axis-angle, coefficient loss", PAPER_RECIPE),
              "6d": ("6-D rotation", {**PAPER_RECIPE, "rotation": "6d"}),
              "6d_dist": ("6-D + distance-insensitive", {**PAPER_RECIPE, "rotation": "6d", "view": ViewOptions(True, 1.7)}),
-             "recipe": (f"this profile's recipe: {prof.rotation}, roll {'on' if prof.augment_roll else 'off'}, "
-                        f"{prof.shape_loss} loss", prof.recipe())}
-    unknown = set(prof.options) - set(OPTIONS)
+             "recipe": (f"this profile's recipe: {prof.recipe.rotation}, roll {'on' if prof.recipe.augment_roll else 'off'}, "
+                        f"{prof.recipe.shape_loss} loss", prof.recipe.fit_kwargs())}
+    unknown = set(prof.recipe.options) - set(OPTIONS)
     if unknown:
         raise ValueError(f"profile {prof.name}: unknown options {sorted(unknown)}; expected some of {OPTIONS}")
-    chosen = [o for o in prof.options if not (o == "recipe" and prof.recipe() == PAPER_RECIPE)]
+    chosen = [o for o in prof.recipe.options if not (o == "recipe" and prof.recipe.fit_kwargs() == PAPER_RECIPE)]
     rows = {}
     for key in chosen:
         name, kw = specs[key]

@@ -316,7 +316,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
         K = settings.intrinsics
         train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
-                                   replace(settings, views_per_object=prof.stream_val_views), sub, shuffle=False)
+                                   replace(settings, views_per_object=prof.data.stream_val_views), sub, shuffle=False)
         return TrainingData(ModelView(train_views, K, view, mean, std, augment_roll),
                             ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std)
     raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
@@ -328,7 +328,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
 class TrainOptions:
     """How to train a run's model (``python -m hbeo train``'s options), one default per field; ``None``
     means "the profile's": ``epochs``, the recipe (``rotation``, ``augment_roll``, ``shape_loss``:
-    :meth:`hbeo.config.Profile.recipe`) and the data source ``data`` (:data:`DATA_SOURCES`).
+    :meth:`hbeo.config.RecipeConfig.fit_kwargs`) and the data source ``data`` (:data:`DATA_SOURCES`).
 
     normalization: depth input ``none`` (metres, the paper) or ``center``; view: :class:`ViewOptions`;
     sampler / views: the training views' sampler and views per object (render settings); loss: the
@@ -356,7 +356,7 @@ class TrainOptions:
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``."""
-        return {k: v if (v := getattr(self, k)) is not None else d for k, d in prof.recipe().items()}
+        return {k: v if (v := getattr(self, k)) is not None else d for k, d in prof.recipe.fit_kwargs().items()}
 
     def changed(self) -> dict:
         """The fields that differ from their defaults, JSON-ready (for provenance)."""
@@ -395,7 +395,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     recipe = opts.recipe(prof)
     rotation, augment_roll, shape_loss = recipe["rotation"], recipe["augment_roll"], recipe["shape_loss"]
     view = opts.view
-    source = opts.data or prof.train_data
+    source = opts.data or prof.data.train_data
     if source not in DATA_SOURCES:
         raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
     if shape_loss not in SHAPE_LOSSES:
@@ -410,14 +410,14 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     settings = settings or RenderSettings.from_profile(prof)
     data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
-                    conv_channels=tuple(prof.conv_channels), fc=tuple(prof.fc), kernel=prof.kernel, rotation=rotation,
-                    normalization=opts.normalization)
+                    conv_channels=tuple(prof.network.conv_channels), fc=tuple(prof.network.fc),
+                    kernel=prof.network.kernel, rotation=rotation, normalization=opts.normalization)
     how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
            "val_fraction": opts.val_fraction}
     if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
         how["source"] = source
-    tc = TrainConfig(epochs=opts.epochs or prof.epochs, batch_size=prof.batch_size, lr=prof.lr, seed=opts.seed,
-                     progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.batch_size)),
+    tc = TrainConfig(epochs=opts.epochs or prof.recipe.epochs, batch_size=prof.recipe.batch_size, lr=prof.recipe.lr,
+                     seed=opts.seed, progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
                      max_steps=opts.max_steps, data=how, checkpoint_every=opts.checkpoint_every,
                      num_workers=opts.loader_workers)
     task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None)

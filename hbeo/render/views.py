@@ -126,7 +126,7 @@ class RenderSettings:
         """Image size and views per object from a run profile (name or :class:`~hbeo.config.Profile`);
         keyword arguments override any field (``None`` values are ignored)."""
         prof = config.get_profile(profile)
-        kw = {"image_size": tuple(prof.image_size), "views_per_object": prof.views_per_object}
+        kw = {"image_size": tuple(prof.data.image_size), "views_per_object": prof.data.views_per_object}
         kw.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**kw)
 

@@ -5,7 +5,9 @@ A run folder's ``models.json`` (:attr:`hbeo.rundir.RunDir.model_rows`) lists the
     [{"label": "...", "val": "eval_val_x.json", "test": "eval_test_x.json" or null,
       "chosen": true | false, "note": "..."}, ...]
 
-Each names metrics files of the same folder (``python -m hbeo evaluate`` output). Configurations are
+Each names metrics files (``python -m hbeo evaluate`` output) of the same folder or, for models the run
+no longer holds (earlier configurations, ablations), of its history folder (:attr:`hbeo.rundir.RunDir.history`,
+``docs/history/<run>/``). Configurations are
 compared on the validation objects; only rows marked ``chosen`` (picked there) have a test
 column, each evaluated on the test split once; test figures carry 95 % intervals from a bootstrap
 over test objects (:mod:`hbeo.evaluation.intervals`). :func:`model_table` renders the Markdown table from
@@ -54,9 +56,12 @@ def _figures(m: dict, ci: bool = False) -> list[str]:
 
 
 def _load(run: RunDir, name: str | None, split: str) -> dict | None:
+    """A row's metrics file: in the run folder, or (a model the run no longer holds) in its history folder."""
     if not name:
         return None
     path = run.path / name
+    if not path.exists() and (run.history / name).exists():
+        path = run.history / name
     try:
         m = json.loads(path.read_text())
     except (OSError, ValueError) as err:

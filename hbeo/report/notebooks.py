@@ -76,8 +76,8 @@ def clear_products(run) -> list[Path]:
     import shutil
     from hbeo.evaluation.protocol import EVALUATIONS
     run = RunDir.of(run)
-    gone = [*run.path.glob("*.hbeo"), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
-            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.path.glob("train_*")]
+    gone = [*run.model_files(), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
+            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.training_dirs()]
     out = []
     for p in gone:
         if p.is_dir():
@@ -102,7 +102,7 @@ def preflight(profile: str, dataset: str, out_dir=None):
         import torch
         if not torch.cuda.is_available():
             raise HBEOError(f"the {prof.name} profile trains the paper-sized network on millions of "
-                            f"{prof.image_size[0]}x{prof.image_size[1]} images and needs a CUDA GPU; none is visible "
+                            f"{prof.data.image_size[0]}x{prof.data.image_size[1]} images and needs a CUDA GPU; none is visible "
                             f"to torch (install the CUDA build of torch, or set HBEO_ALLOW_CPU=1 to run it on the "
                             f"CPU anyway: days)")
     try:

@@ -90,7 +90,7 @@ def training_records(run) -> dict:
     """{model file: how it was trained} from the run's ``train_*/provenance.json``
     (:meth:`hbeo.run.Run.train`)."""
     out = {}
-    for p in sorted(RunDir.of(run).path.glob("train_*/provenance.json")):
+    for p in RunDir.of(run).training_provenances():
         rec = json.loads(p.read_text())
         out[rec.get("model", p.parent.name)] = rec
     return out

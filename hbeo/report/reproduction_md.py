@@ -19,6 +19,7 @@ import os
 from pathlib import Path
 
 from hbeo import config
+from hbeo.report import tables as T
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -74,44 +75,123 @@ def _training(man: dict) -> str:
     return "; ".join(parts) + "."
 
 
-def deviations(man: dict) -> list[str]:
-    """Every difference between the run's setup and the paper's, with why (figures from the manifest)."""
+#: Datasets the deviations describe by name (:mod:`hbeo.data.datasets`); others get a generic line.
+_DATASET_TEXT = {
+    "modelnet10-vox30": "ModelNet10 as the published 30³ grids (3D ShapeNets layout, {test_text}). Depth images "
+                        "are rendered from a smoothed surface of each grid, not from the meshes, so detail below a "
+                        "voxel is missing from the inputs. `python -m hbeo voxelize --dataset modelnet10 --out FILE` "
+                        "rebuilds the grid file from the meshes (README, Voxelization).",
+    "modelnet10": "ModelNet10's meshes, voxelized here to 30³ grids ({test_text}). Depth images are rendered "
+                  "from a smoothed surface of each grid, not from the meshes.",
+    "procedural": "Procedural objects (`hbeo.data.procedural`), not ModelNet10: {train} training and {test_run} "
+                  "test objects in the paper's ten class names, generated as 30³ grids; the numbers measure the "
+                  "method, not the paper's benchmark.",
+}
+
+
+def _class_counts(run) -> dict:
+    """Totals of the run's class-count table (notebook 01): source and run objects per split, skipped."""
+    import pandas as pd
+    if run is None or not RunDir.of(run).table(T.CLASS_COUNTS).exists():
+        return {}
+    t = pd.read_csv(RunDir.of(run).table(T.CLASS_COUNTS), index_col=0)
+    return {k: int(v) for k, v in t.loc["total"].items()} if "total" in t.index else {}
+
+
+def _data_line(man: dict, counts: dict) -> str:
+    p = man.get("profile_settings", {})
+    train, test = counts.get("train"), counts.get("test")
+    train_run, test_run = counts.get("train (run)", train), counts.get("test (run)", test)
+    if test is None:
+        test_text = "test objects: see notebook 01"
+    elif p.get("n_test_per_class") is None:
+        missing = test - test_run
+        test_text = (f"all {test} test grids" if missing == 0 else
+                     f"{test_run} of {test} test grids: {'one is' if missing == 1 else f'{missing} are'} empty")
+    else:
+        test_text = f"{test_run} of {test} test grids: the profile's {p['n_test_per_class']} per class"
+    name = man.get("dataset", "?")
+    text = _DATASET_TEXT.get(name, f"Dataset `{name}`: {{train_run}} training and {{test_run}} test objects "
+                                   f"(not the paper's benchmark).")
+    return "- **Data.** " + text.format(test_text=test_text, train=train, test=test, train_run=train_run,
+                                        test_run=test_run)
+
+
+def _so3_spacing_deg(n: int) -> float:
+    """Mean nearest-neighbour angle (degrees) of BEO's super-Fibonacci search grid of ``n`` rotations."""
+    import numpy as np
+    from hbeo.rotations import geodesic_deg, super_fibonacci
+    R, best = super_fibonacci(n), np.empty(n)
+    for i in range(0, n, 128):
+        d = geodesic_deg(R[i:i + 128, None], R[None])
+        d[np.arange(len(d)), np.arange(i, i + len(d))] = np.inf
+        best[i:i + 128] = d.min(1)
+    return float(best.mean())
+
+
+def _components(run) -> int | None:
+    """Subspace components over all classes (notebook 02's ``02_components.csv``), or None."""
+    import pandas as pd
+    if run is None or not RunDir.of(run).table(T.COMPONENTS).exists():
+        return None
+    comp = pd.read_csv(RunDir.of(run).table(T.COMPONENTS), index_col=0)
+    cols = [c for c in comp.columns if c.startswith("components")]
+    return int(comp[cols[0]].sum()) if cols else None
+
+
+def deviations(man: dict, run=None) -> list[str]:
+    """Every difference between the run's setup and the paper's, with why: figures from the manifest and,
+    where ``run`` (its folder) is given, from its dataset tables (notebooks 01 and 02)."""
     p = man.get("profile_settings", {})
     hw = man.get("hardware", {})
     main = man.get("training", {}).get("model.hbeo", {})
     size = "×".join(map(str, p.get("image_size", ["?"])))
     n_params = f"{main['n_params'] / 1e6:.2f} M" if main.get("n_params") else "fewer"
+    paper = config.RecipeConfig(epochs=0, batch_size=0).fit_kwargs()     # the recipe's defaults are the paper's
+    recipe = main.get("recipe") or {k: p[k] for k in paper if k in p}      # the model's record, else the profile's
+    if set(recipe) != set(paper):
+        recipe_line = "- **Training recipe.** The run's manifest does not record the model's training recipe"
+    elif recipe == paper:
+        recipe_line = ("- **Training recipe.** The run's model uses the paper's recipe (axis-angle regression, no "
+                       f"augmentation, coefficient loss), {p.get('epochs', '?')} epochs")
+    else:
+        recipe_line = (
+            "- **Training recipe.** The run's model uses the recipe chosen on validation objects: "
+            f"pose output `{recipe['rotation']}`, roll augmentation {'on' if recipe['augment_roll'] else 'off'}, "
+            f"shape loss `{recipe['shape_loss']}` (the paper: axis-angle regression, no augmentation, coefficient "
+            f"loss). The paper's recipe is trained in notebook 04 for comparison ({p.get('option_epochs') or p.get('epochs')} "
+            "epochs, validation objects)")
+    why = ("the `full` profile is the paper's scale, on a GPU" if p.get("needs_gpu") else
+           "the reproduction must finish on a 2-core machine (the `full` profile is the paper's scale, GPU only)")
+    k = _components(run)
+    comps = ("the run's component counts are in notebook 02" if k is None else
+             f"on these grids that gives {k} components in all, {'fewer' if k < 344 else 'more'} than the paper's "
+             "344 shared dimensions (notebook 02)")
+    grid = p.get("beo_so3_grid")
+    spacing = f", about {_so3_spacing_deg(int(grid)):.0f}° apart" if isinstance(grid, int) and grid > 1 else ""
+    everyone = lambda n: "all" if n is None else f"the first {n}"     # noqa: E731
     return [
         f"- **Scale of training.** The paper trains on about 7 million 320×240 depth images on a GPU. Here: "
         f"{p.get('views_per_object', '?')} views of each training object at {size} pixels, {p.get('epochs', '?')} "
         f"epochs, on {hw.get('cores', '?')} CPU cores ({hw.get('cpu', '?')}, GPU: {hw.get('gpu') or 'none'}). "
-        f"Why: the reproduction must finish on a 2-core machine (the `full` profile is the paper's scale, GPU only).",
+        f"Why: {why}.",
         f"- **Network size.** HBEONet has {n_params} parameters at {size} input (convolutions "
         f"{p.get('conv_channels')}, fully connected {p.get('fc')}); at 320×240 the paper's design has about 15 M. "
         f"The layer pattern (four strided convolutions, three shared fully connected layers, three heads) is the paper's.",
-        f"- **Training recipe.** The run's model uses the recipe chosen on validation objects in issue 16: "
-        f"pose output `{p.get('rotation')}`, roll augmentation {'on' if p.get('augment_roll') else 'off'}, "
-        f"shape loss `{p.get('shape_loss')}` (the paper: axis-angle regression, no augmentation, coefficient "
-        f"loss). The paper's recipe is trained in notebook 04 for comparison ({p.get('option_epochs') or p.get('epochs')} "
-        f"epochs, validation objects). 10 % of each class's training objects are held out for validation "
-        f"(the paper trains on all).",
+        recipe_line + ". 10 % of each class's training objects are held out for validation (the paper trains on all).",
         "- **HBEO + verify** (rows marked *ours*) adds test-time roll averaging and a check of the network's top "
         "rotation hypotheses against the depth image (`hbeo.model.verify`); it is not in the paper and is "
         "reported beside, never instead of, HBEO.",
-        "- **Data.** ModelNet10 as the published 30³ grids (3D ShapeNets layout, 907 of 908 test grids: one is "
-        "empty). Depth images are rendered from a smoothed surface of each grid, not from the meshes, so detail "
-        "below a voxel is missing from the inputs. `python -m hbeo voxelize --dataset modelnet10 --out FILE` "
-        "rebuilds the grid file from the meshes (README, Voxelization).",
-        "- **Subspace.** Per-class VBPCA at 60 % of the variance, as in the paper; on these grids that gives fewer "
-        "components than the paper's 344 shared dimensions (notebook 02).",
+        _data_line(man, _class_counts(run)),
+        f"- **Subspace.** Per-class VBPCA at 60 % of the variance, as in the paper; {comps}.",
         "- **BEO** is reimplemented (not the authors' Matlab). Its class-and-pose score adds the likelihood of the "
         "observed voxels to the paper's density (`score=\"joint\"`), and its partial projection has a small ridge "
         "term; both measured in `hbeo/baselines/beo.py` and benchmarks/README.md. Its 3-DOF search covers "
-        f"{p.get('beo_so3_grid', '?')} rotations (a super-Fibonacci grid, about 15° apart).",
-        f"- **Query counts.** BEO in 3-DOF and ICP answer view 0 of the first {p.get('beo_3dof_test_per_class')} "
-        f"and {p.get('icp_test_per_class')} test objects per class (their pose searches take seconds per query); "
-        f"their comparisons with HBEO use those pairs only. Every other method answers {p.get('eval_views')} paired "
-        f"views of every test object.",
+        f"{grid if grid is not None else '?'} rotations (a super-Fibonacci grid{spacing}).",
+        f"- **Query counts.** BEO in 3-DOF and ICP answer view 0 of {everyone(p.get('beo_3dof_test_per_class'))} "
+        f"and {everyone(p.get('icp_test_per_class'))} test objects per class (their pose searches take seconds per "
+        f"query); their comparisons with HBEO use those pairs only. Every other method answers {p.get('eval_views')} "
+        f"paired views of every test object.",
         "- **3DShapeNets** (a 2015 convolutional deep belief network) is not rerun: its Table I row is the paper's, "
         "and a 3-D CNN on the partial grid trained here (`hbeo.baselines.voxcnn`, "
         f"{p.get('voxcnn_epochs')} epochs) plays its role in the measured comparisons.",
@@ -165,31 +245,31 @@ def reproduction_text(run, out: Path) -> str:
         "*holds*: the whole interval of the claim's contrast lies on its side; *fails*: the whole interval on the "
         "other side; *inconclusive*: the interval straddles zero.",
         "",
-        _read(run.table("06_claims", "md")),
+        _read(run.table(T.CLAIMS, "md")),
         "",
         "## Table I: classification accuracy (%)",
         "",
-        _read(run.table("05_accuracy_ci", "md")),
+        _read(run.table(T.ACCURACY_CI, "md")),
         "",
         "Per class, reported beside reproduced:",
         "",
-        _read(run.table("05_table1", "md")),
+        _read(run.table(T.TABLE1, "md")),
         "",
         fig("05_confusion", "confusion matrices"),
         "",
         "## Pose error (the paper's pose figure)",
         "",
-        _read(run.table("06_pose_ci", "md")),
+        _read(run.table(T.POSE_CI, "md")),
         "",
-        _read(run.table("06_pose", "md")),
+        _read(run.table(T.POSE, "md")),
         "",
         fig("06_pose_error", "pose error distributions"),
         "",
         "## Completion error (the paper's completion figure)",
         "",
-        _read(run.table("06_completion_ci", "md")),
+        _read(run.table(T.COMPLETION_CI, "md")),
         "",
-        _read(run.table("06_completion", "md")),
+        _read(run.table(T.COMPLETION, "md")),
         "",
         fig("06_completion", "completion errors"),
         "",
@@ -197,17 +277,17 @@ def reproduction_text(run, out: Path) -> str:
         "",
         "## Table II: runtime per query",
         "",
-        _read(run.table("07_table2", "md")),
+        _read(run.table(T.TABLE2, "md")),
         "",
         fig("07_runtime", "runtime"),
         "",
         "## Options trained in the run (notebook 04, validation objects)",
         "",
-        _read(run.table("04_options", "md")),
+        _read(run.table(T.OPTIONS, "md")),
         "",
         "## Deviations from the paper",
         "",
-        *deviations(man),
+        *deviations(man, run),
         "",
     ]
     return "\n".join(lines)
@@ -224,7 +304,7 @@ def summary(run) -> str:
     import pandas as pd
     run = RunDir.of(run)
     man = json.loads(run.manifest.read_text()) if run.manifest.exists() else {}
-    parts = [pd.read_csv(run.table(n)) for n in ("05_accuracy_ci", "06_pose_ci", "06_completion_ci")
+    parts = [pd.read_csv(run.table(n)) for n in (T.ACCURACY_CI, T.POSE_CI, T.COMPLETION_CI)
              if run.table(n).exists()]
     if not parts:
         return f"*(no results in {run.path.name}: run the notebooks first)*\n"
@@ -250,8 +330,8 @@ def summary(run) -> str:
     rep = pd.read_csv(PAPER / "reported" / "table1_classification.csv")
     lines += ["", "The paper's Table I totals (`paper/reported/table1_classification.csv`): " + ", ".join(
         f"{r.method} ({r.setting.replace('_', ' ')}) {r.total:.1f} %" for r in rep.itertuples()) + "."]
-    if run.table("06_claims").exists():
-        cl = pd.read_csv(run.table("06_claims"))
+    if run.table(T.CLAIMS).exists():
+        cl = pd.read_csv(run.table(T.CLAIMS))
         lines += ["", "The paper's claims on this run (HBEO as the paper trains it and as extended here; "
                   "`06_claims.md` has each interval):", ""]
         for who, g in cl.groupby("HBEO played by", sort=False):
@@ -267,8 +347,8 @@ def subspace_summary(run) -> str:
     means over objects (the ``all`` row of ``02_completion_partial.csv``)."""
     import pandas as pd
     run = RunDir.of(run)
-    comp = pd.read_csv(run.table("02_components"), index_col=0)
-    part = pd.read_csv(run.table("02_completion_partial"), header=[0, 1], index_col=0).loc["all"]
+    comp = pd.read_csv(run.table(T.COMPONENTS), index_col=0)
+    part = pd.read_csv(run.table(T.COMPLETION_PARTIAL), header=[0, 1], index_col=0).loc["all"]
     k = comp[[c for c in comp.columns if c.startswith("components")][0]]
     lines = [f"Run `{run.path.name}`: {k.min()}–{k.max()} components per class (`02_components.csv`); test-split "
              f"completion with this basis, means over all test objects (`02_completion_partial.csv`):", "",

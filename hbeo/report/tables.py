@@ -3,8 +3,9 @@ intervals are :mod:`hbeo.evaluation.paired`'s), and writing any notebook table i
 
 Every paper table carries a ``source`` column: ``reported`` (the paper, :func:`paper_table`, from
 ``paper/reported/*.csv``) or ``reproduced`` (this run). :func:`to_markdown` formats any table as
-Markdown; :func:`save_csv` and :func:`save_markdown` write one (atomically) to
-:meth:`hbeo.rundir.RunDir.table`.
+Markdown; :func:`save_table` writes one as CSV and Markdown (:func:`save_csv` CSV only) atomically to
+:meth:`hbeo.rundir.RunDir.table`. The tables' names are the constants below (``TABLE1 = "05_table1"``
+...), shared by the notebooks that write them and the report that reads them.
 
 May import: foundation.
 """
@@ -28,6 +29,26 @@ REPORTED = config.REPO_ROOT / "paper" / "reported"
 _PAPER_SETTING = {"known_pose": "known", "unknown_pose_1dof": "1dof", "unknown_pose_3dof": "3dof"}
 
 
+# The run folder's tables, by the notebook that writes them (``NN_`` is the notebook's number).
+CLASS_COUNTS = "01_class_counts"            #: objects per class and split
+COMPONENTS = "02_components"                #: subspace components per class
+PAPER_COUNTS = "02_paper_counts"            #: the component counts the paper implies
+COMPLETION_FULL = "02_completion_full"      #: completion from full grids
+COMPLETION_PARTIAL = "02_completion_partial"  #: completion from partial grids
+STORAGE = "03_storage"                      #: the rendered set's size on disk
+OPTIONS = "04_options"                      #: notebook 04's training variants on the validation objects
+ACCURACY_CI = "05_accuracy_ci"              #: classification accuracy with intervals
+TABLE1 = "05_table1"                        #: the paper's Table I beside ours
+POSE_CI = "06_pose_ci"                      #: pose error with intervals
+POSE = "06_pose"                            #: pose error summary
+POSE_PER_CLASS = "06_pose_per_class"        #: pose error per class
+COMPLETION_CI = "06_completion_ci"          #: completion error with intervals
+COMPLETION = "06_completion"                #: completion error summary
+CLAIMS = "06_claims"                        #: the paper's claims, paired tests
+PER_QUERY = "07_per_query"                  #: one row per query and method (timings)
+TABLE2 = "07_table2"                        #: the paper's Table II (runtime) beside ours
+
+
 def paper_table(name: str) -> pd.DataFrame:
     """The paper's reported numbers: ``table1_classification`` or ``table2_runtime``."""
     return pd.read_csv(REPORTED / f"{name}.csv")
@@ -38,6 +59,15 @@ def save_csv(df: pd.DataFrame, run, name: str, index: bool = False) -> Path:
     path = RunDir.of(run).table(name)
     atomic_text(path, df.to_csv(index=index))
     return path
+
+
+def save_table(df: pd.DataFrame, run, name: str, index: bool = False, markdown: pd.DataFrame | None = None,
+               floatfmt: str = "{:.1f}", note: str = "") -> tuple[Path, Path]:
+    """Write a table both ways: ``df`` to the run's ``NN_name.csv`` (:func:`save_csv`) and ``markdown``
+    (default ``df``, e.g. a wide view of a long table) to ``NN_name.md`` (:func:`save_markdown`);
+    returns both paths."""
+    return (save_csv(df, run, name, index=index),
+            save_markdown(df if markdown is None else markdown, run, name, floatfmt=floatfmt, note=note))
 
 
 def save_markdown(df: pd.DataFrame, run, name: str, floatfmt: str = "{:.1f}", note: str = "") -> Path:
@@ -195,12 +225,6 @@ def table2(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
             rows.append({"method": f"{meth} ({pose}), reported only", "queries": np.nan, "median (s)": np.nan,
                          "p25 (s)": np.nan, "p75 (s)": np.nan, "mean (s)": np.nan, "paper: mean (s)": v})
     return pd.DataFrame(rows)
-
-
-def accuracy_summary(evals: list[dict]) -> pd.DataFrame:
-    """Accuracy (%) and query count of each evaluation, one row each."""
-    return pd.DataFrame([{"method": label(m), "accuracy (%)": 100 * m["accuracy"], "queries": m["n_queries"]}
-                         for m in evals]).set_index("method")
 
 
 def worse_than_chance(evals: list[dict]) -> list[str]:
