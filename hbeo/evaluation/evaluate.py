@@ -49,7 +49,7 @@ from tqdm.auto import tqdm
 from hbeo import __version__
 from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
-from hbeo.errors import DataError
+from hbeo.errors import BatchError, DataError
 from hbeo.render.views import object_key
 from hbeo.rotations import geodesic_deg, z_angle_to_matrix
 from hbeo.rundir import failure
@@ -146,10 +146,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
             bar.update(1)
     bar.close()
     if not rows:
-        err = DataError(None, f"{dataset.name}/{split}: no view could be evaluated "
-                              f"({len(failures)} of {len(records)} objects failed)")
-        err.failures = failures
-        raise err
+        raise BatchError(None, f"{dataset.name}/{split}: no view could be evaluated "
+                               f"({len(failures)} of {len(records)} objects failed)", failures)
     out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records) - len(failures))
     out["failures"] = failures
     precision = getattr(model, "precision", "float32") if method is None else None
