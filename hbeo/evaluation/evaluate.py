@@ -51,19 +51,14 @@ from hbeo.conventions import UP_SYMMETRY
 from hbeo.data.gridset import record_grid
 from hbeo.errors import BatchError, DataError
 from hbeo.render.views import object_key
-from hbeo.rotations import geodesic_deg, z_angle_to_matrix
+from hbeo.rotations import geodesic_deg, symmetric_pose_error_deg
 from hbeo.rundir import failure
 from hbeo.subspace.metrics import edt_error, iou, naive_error
 
 
-def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> np.ndarray:
-    """Geodesic error (degrees) modulo ``order``-fold turns of the object about its up axis (+z):
-    min over k of angle(R_pred, R_true @ Rz(2 pi k / order))."""
-    errs = []
-    for k in range(max(1, order)):
-        Rz = z_angle_to_matrix(2 * np.pi * k / max(1, order))
-        errs.append(geodesic_deg(R_pred, R_true @ Rz))
-    return np.min(errs, axis=0)
+#: the old name of :func:`hbeo.rotations.symmetric_pose_error_deg`, kept while
+#: :mod:`hbeo.lessons.yourdepth` imports it from here
+symmetric_pose_error = symmetric_pose_error_deg
 
 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
@@ -209,7 +204,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
     correct = np.array([r["class"] == r["pred"] for r in rows])
     Rt, Rp = np.stack([r["R_true"] for r in rows]), np.stack([r["R_pred"] for r in rows])
     raw = geodesic_deg(Rp, Rt)
-    sym = np.array([symmetric_pose_error(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
+    sym = np.array([symmetric_pose_error_deg(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
     truth, pred = np.stack([r["truth"] for r in rows]), np.stack([r["grid"] for r in rows])
     edt, nai, io = edt_error(truth, pred), naive_error(truth, pred), iou(truth, pred)
     empty = pred.reshape(len(pred), -1).sum(1) == 0
