@@ -87,12 +87,12 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     if verify is not None and method is not None:
         raise ValueError("verify applies to HBEO itself, not to a baseline")
     over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
-    rs = RenderSettings.from_dict({**model.settings.get("render", {}), **over})
+    rs = RenderSettings.from_dict({**model.settings.render, **over})
     K = model.intrinsics
     classes = tuple(model.classes)
     means = class_mean_grids(model.subspace) if getattr(model, "subspace", None) is not None else None
     name, pose = ("hbeo", "3dof") if method is None else (method.name, pose or method.default_pose)
-    records = split_records(dataset, split, per_class, model.settings.get("profile"))
+    records = split_records(dataset, split, per_class, model.settings.profile)
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
     if unknown := sorted({r.cls for r in records} - set(classes)):

@@ -33,9 +33,9 @@ def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int =
     from hbeo.render.views import RenderSettings
     if split == "test":
         raise ValueError("verify_sweep chooses settings: run it on 'val' objects, never on the test split")
-    rs = RenderSettings.from_dict({**model.settings.get("render", {}), "views_per_object": views, "seed": seed,
+    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": views, "seed": seed,
                                    "noise": False})
-    records = split_records(dataset, split, per_class, model.settings.get("profile"))
+    records = split_records(dataset, split, per_class, model.settings.profile)
     verifiers = {n: (Verifier(model, c) if c is not None else None) for n, c in configs.items()}
     rows: dict[str, list] = {n: [] for n in configs}
     plain, agreement = [], {n: [] for n in configs}
