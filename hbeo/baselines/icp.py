@@ -47,6 +47,7 @@ from scipy.spatial import cKDTree
 
 from hbeo import conventions as C
 from hbeo.errors import DataError
+from hbeo.baselines.methods import METHODS
 from hbeo.rotations import (axis_and_angle_to_matrix, axis_angle_to_matrix, check_rotation_matrices, geodesic,
                             project_to_so3, super_fibonacci, z_angle_to_matrix)
 from hbeo.storage import pack_bits, read_npz, unpack_bits, write_npz
@@ -146,6 +147,14 @@ class ICPBaseline:
     (point-to-plane, default) or ``"point"`` (point-to-point). seed: default random stream of
     :meth:`predict_view` (subsampling, 1-DOF yaw offset) and of the model sampling in :meth:`fit`.
     """
+
+    #: the :class:`hbeo.evaluation.method.Method` contract: registry name and pose settings (default first)
+    name = "icp"
+    poses = METHODS["icp"]
+
+    def describe(self) -> dict:
+        """Settings the metrics dict records beyond name and pose: none for a baseline."""
+        return {}
 
     def __init__(self, n_init: int = 48, max_iter: int = 40, n_points: int = 500, trim: float = 0.9,
                  seed: int = 0, n_yaw: int = 12, n_model: int = 4000, n_coarse: int = 150,
