@@ -177,6 +177,17 @@ def backproject(depth: np.ndarray, K: Intrinsics) -> tuple[np.ndarray, np.ndarra
     return np.stack([x, y, z], axis=1), np.stack([rows, cols], axis=1)
 
 
+def subsample_points(points: np.ndarray, n: int, rng, keep_order: bool = False) -> np.ndarray:
+    """At most ``n`` of ``points`` (N, ...): all of them when N <= n, else ``n`` drawn without
+    replacement by ``rng`` (a numpy Generator, or an int seed), in drawn order or, with
+    ``keep_order``, in their original order. The one way hbeo thins a point cloud."""
+    points = np.asarray(points)
+    if len(points) <= n:
+        return points
+    idx = np.random.default_rng(rng).choice(len(points), n, replace=False)
+    return points[np.sort(idx) if keep_order else idx]
+
+
 # --------------------------------------------------------------------------- pose
 
 #: Near-symmetries of the classes: order n of turns by 360/n degrees about the object's up

@@ -41,11 +41,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "axis_and_angle_to_matrix", "axis_angle_to_matrix", "direction_to_matrix", "geodesic",
-    "geodesic_deg", "matrix_to_axis_angle", "matrix_to_quaternion", "matrix_to_sixd",
-    "project_to_so3", "quaternion_to_matrix", "sixd_to_matrix", "super_fibonacci", "uniform_so3",
-    "view_deg_to_matrix", "x_angle_to_matrix", "yaw_elevation_to_matrix", "z_angle_to_matrix",
+    "ROTATION_TOL", "axis_and_angle_to_matrix", "axis_angle_to_matrix", "check_rotation_matrices",
+    "direction_to_matrix", "geodesic", "geodesic_deg", "matrix_to_axis_angle", "matrix_to_quaternion",
+    "matrix_to_sixd", "project_to_so3", "quaternion_to_matrix", "sixd_to_matrix", "super_fibonacci",
+    "symmetric_pose_error_deg", "uniform_so3", "view_deg_to_matrix", "x_angle_to_matrix",
+    "yaw_elevation_to_matrix", "z_angle_to_matrix",
 ]
+
+#: how far a matrix may be from orthonormal (max |R^T R - I|) and its determinant from +1 and still
+#: count as a rotation (:func:`check_rotation_matrices`)
+ROTATION_TOL = 1e-4
 
 
 # --------------------------------------------------------------------------- helpers
@@ -236,6 +241,38 @@ def geodesic(R1, R2) -> np.ndarray:
 def geodesic_deg(R1, R2) -> np.ndarray:
     """Angle (degrees, in [0, 180]) of the rotation taking R1 to R2 (see :func:`geodesic`)."""
     return np.degrees(geodesic(R1, R2))
+
+
+def symmetric_pose_error_deg(R_pred, R_true, order: int) -> np.ndarray:
+    """Geodesic error (degrees) modulo ``order``-fold turns of the object about its up axis (+z):
+    min over k of angle(R_pred, R_true @ Rz(2 pi k / order)); ``order`` <= 1: the plain geodesic
+    error. The evaluation's symmetric pose metric (orders: :data:`hbeo.conventions.UP_SYMMETRY`)."""
+    errs = []
+    for k in range(max(1, order)):
+        Rz = z_angle_to_matrix(2 * np.pi * k / max(1, order))
+        errs.append(geodesic_deg(R_pred, R_true @ Rz))
+    return np.min(errs, axis=0)
+
+
+def check_rotation_matrices(R, name: str = "R") -> np.ndarray:
+    """``R`` as float64 (same shape), checked to hold rotation matrices: orthonormal (max
+    |R^T R - I|) with determinant +1, both within :data:`ROTATION_TOL`. One matrix (3, 3) or a
+    batch (..., 3, 3); ValueError naming the first bad one (``name`` or ``name[i]``, flat index)
+    with its error and determinant. Shape and finiteness are the caller's to check first (their
+    messages name the caller's arguments)."""
+    R = _check(R, (3, 3), "check_rotation_matrices", name)
+    flat = R.reshape(-1, 3, 3)
+    if not len(flat):
+        return R
+    err = np.abs(np.einsum("nji,njk->nik", flat, flat) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(flat)
+    bad = np.nonzero((err > ROTATION_TOL) | (np.abs(det - 1.0) > ROTATION_TOL))[0]
+    if len(bad):
+        i = int(bad[0])
+        who = name if R.ndim == 2 else f"{name}[{i}]"
+        raise ValueError(f"{who} is not a rotation matrix (|R^T R - I| = {err[i]:.2g}, det = {det[i]:.6g}; "
+                         f"need orthonormal with det +1 within {ROTATION_TOL:g})")
+    return R
 
 
 # --------------------------------------------------------------------------- elementary rotations

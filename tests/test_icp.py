@@ -232,3 +232,14 @@ def test_bad_input(data, views, class_means):
         ICPBaseline(trim=0)
     with pytest.raises(ValueError, match="metric"):
         ICPBaseline(metric="plane-to-plane")
+
+
+def test_subsample_points_is_the_one_thinning():
+    from hbeo.conventions import subsample_points
+    pts = np.arange(30.0).reshape(10, 3)
+    assert subsample_points(pts, 10, 0) is not None and len(subsample_points(pts, 10, 0)) == 10
+    assert np.array_equal(subsample_points(pts, 20, 0), pts)                          # fewer: all, as given
+    drawn = subsample_points(pts, 4, np.random.default_rng(5))
+    assert np.array_equal(drawn, pts[np.random.default_rng(5).choice(10, 4, replace=False)])
+    kept = subsample_points(pts, 4, 5, keep_order=True)
+    assert np.array_equal(kept, np.sort(drawn, axis=0)) and len(np.unique(kept[:, 0])) == 4

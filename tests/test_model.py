@@ -47,7 +47,7 @@ def test_save_load_round_trip(model, tmp_path):
     K = Intrinsics.kinect(64, 48)
     a, b = model.predict(blob_depth(K), K), back.predict(blob_depth(K), K)
     assert np.allclose(a.probabilities, b.probabilities) and np.array_equal(a.grids, b.grids)
-    assert back.classes == model.classes and back.settings["ref_distance"] == 1.7
+    assert back.classes == model.classes and back.settings.ref_distance == 1.7
 
 
 def test_bad_model_files(tmp_path):
@@ -74,7 +74,7 @@ def test_to_mesh_places_the_completed_shape_in_the_camera_frame(model):
     assert p.grids[0].any()
     mesh = model.to_mesh(p)
     assert np.allclose(mesh.bounds.mean(0), p.translation[0], atol=0.35 * p.scale[0])
-    assert mesh.extents.max() <= 1.2 * model.settings["object_size"] * p.scale[0]
+    assert mesh.extents.max() <= 1.2 * model.settings.object_size * p.scale[0]
 
 
 def test_rotation_bins_model_round_trip(model, tmp_path):

@@ -96,11 +96,30 @@ def test_hbeo_round_trip_is_exact(hbeo_model, files):
     for f in ("probabilities", "rotation", "translation", "coeffs", "grids"):
         assert np.array_equal(getattr(a, f), getattr(b, f)), f
     assert back.classes == hbeo_model.classes and back.intrinsics == K and back.net.cfg == hbeo_model.net.cfg
-    assert back.settings["ref_distance"] == 1.7
-    assert np.array_equal(back.settings["coeff_mean"], hbeo_model.settings["coeff_mean"])
+    assert back.settings == hbeo_model.settings and back.settings.ref_distance == 1.7
+    assert back.settings.recenter is True and back.settings.shape_loss == "coeffs"       # the defaults
     meta = json.loads(members(path)["meta.json"])
     assert (meta["format"], meta["format_version"], meta["kind"]) == ("hbeo-model", 2, "hbeo")
     assert np.array_equal(back.subspace.basis_, hbeo_model.subspace.basis_)
+
+
+def test_model_settings_have_one_default_each_and_round_trip(hbeo_model, files, tmp_path):
+    S = MF.ModelSettings
+    assert S.from_dict({}) == S() and S().recenter is True and S().ref_distance is None
+    s = hbeo_model.settings
+    assert S.from_dict(s.to_dict()) == s and json.loads(members(files["hbeo"])["meta.json"])["settings"] == s.to_dict()
+    assert isinstance(s.coeff_mean, tuple) and len(s.coeff_mean) == hbeo_model.subspace.dim_
+    with pytest.raises(AttributeError):
+        s.recenter = False                                                        # frozen
+    # a file that lacks a key means that key's default: recenter was on unless a file said otherwise
+    lacking = edit_meta(files["hbeo"], tmp_path / "lacking.hbeo",
+                        lambda m: [m["settings"].pop(k) for k in ("recenter", "shape_loss", "augment_roll")])
+    back = HBEO.load(lacking).settings
+    assert (back.recenter, back.shape_loss, back.augment_roll) == (True, "coeffs", False)
+    with pytest.raises(DataError, match=r"^meta\.json: settings: object_size must be a positive number"):
+        S.from_dict({"object_size": 0})
+    with pytest.raises(ValueError, match="settings: unknown keys fizz"):
+        HBEO(hbeo_model.net, hbeo_model.subspace, K, hbeo_model.classes, {"fizz": 1})
 
 
 def test_writing_is_deterministic(hbeo_model, files, tmp_path):
@@ -188,6 +207,12 @@ MALFORMED = {
                         '"settings" must be a dict'),
     "unknown key": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.update(code="x")),
                     "unknown keys code"),
+    "unknown setting": (("hbeo",), lambda s, d: edit_meta(s, d, lambda m: m["settings"].update(recentre=True)),
+                        "settings: unknown keys recentre (known: object_size, recenter"),
+    "setting of a wrong type": (("hbeo",), lambda s, d: edit_meta(s, d, lambda m: m["settings"].update(recenter="yes")),
+                                "settings: recenter must be true or false, got str 'yes'"),
+    "coefficients half given": (("hbeo",), lambda s, d: edit_meta(s, d, lambda m: m["settings"].update(coeff_mean=None)),
+                                "coeff_mean and coeff_std must be given together"),
     "class count": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m["classes"].append("zz")),
                     "class names for a network with"),
     "unknown kind": (("hbeo", "voxcnn"), lambda s, d: edit_meta(s, d, lambda m: m.update(kind="beo")),
@@ -320,7 +345,7 @@ def legacy_hbeo(model: HBEO, path):
     torch.save({"format_version": 1, "hbeo_version": "0.1.0", "net_cfg": model.net.cfg.to_dict(),
                 "state_dict": model.net.state_dict(), "subspace": buf.getvalue(),
                 "intrinsics": model.intrinsics.as_tuple(), "classes": list(model.classes),
-                "settings": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in model.settings.items()}},
+                "settings": model.settings.to_dict()},
                path)
     return path
 

@@ -156,3 +156,32 @@ def test_importing_rotations_and_the_data_layer_does_not_import_torch():
             "R.axis_angle_to_matrix(np.ones(3)); print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_check_rotation_matrices_names_the_first_bad_matrix():
+    Rs = RT.uniform_so3(4, np.random.default_rng(0))
+    assert np.array_equal(RT.check_rotation_matrices(Rs), Rs)
+    assert RT.check_rotation_matrices(np.zeros((0, 3, 3))).shape == (0, 3, 3)
+    assert RT.check_rotation_matrices(Rs[:2, None]).shape == (2, 1, 3, 3)           # any leading shape
+    bad = Rs.copy()
+    bad[2] = bad[2] * 1.01                                                           # not orthonormal
+    with pytest.raises(ValueError, match=r"R\[2\] is not a rotation matrix \(\|R\^T R - I\| = 0\.02"):
+        RT.check_rotation_matrices(bad)
+    mirror = Rs[0] @ np.diag([1.0, 1.0, -1.0])                                       # orthonormal, det -1
+    with pytest.raises(ValueError, match=r"R_true is not a rotation matrix .*det = -1"):
+        RT.check_rotation_matrices(mirror, "R_true")
+    small = Rs[1].copy()
+    small[0, 0] += 0.3 * RT.ROTATION_TOL                                             # within the tolerance
+    RT.check_rotation_matrices(small)
+    with pytest.raises(ValueError, match=r"check_rotation_matrices: R must have shape"):
+        RT.check_rotation_matrices(np.eye(2))
+
+
+def test_symmetric_pose_error_is_the_geodesic_error_modulo_turns_about_up():
+    R = RT.uniform_so3(3, np.random.default_rng(1))
+    half = RT.z_angle_to_matrix(np.pi)
+    assert np.allclose(RT.symmetric_pose_error_deg(R @ half, R, 2), 0, atol=1e-5)   # a 2-fold symmetry
+    assert np.allclose(RT.symmetric_pose_error_deg(R @ half, R, 1), 180)            # none: the raw error
+    assert np.allclose(RT.symmetric_pose_error_deg(R @ half, R, 0), 180)
+    turn = RT.z_angle_to_matrix(np.radians(100))                                       # 4-fold: 100 = 90 + 10
+    assert np.allclose(RT.symmetric_pose_error_deg(R @ turn, R, 4), 10)

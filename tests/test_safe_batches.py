@@ -3,6 +3,7 @@ every bad file with its reason (returned, in the run's failures.json, printed), 
 --strict or when nothing succeeded; degenerate meshes are refused by name; a render resume verifies
 the shards' sha256 and renders again what does not match. Tiny folder datasets written in tmp_path."""
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from hbeo.data import datasets, gridset
 from hbeo.data.gridset import build_gridset
 from hbeo.data.meshio import check_mesh
 from hbeo.data.voxel import voxelize
-from hbeo.errors import DataError
+from hbeo.errors import BatchError, DataError
 from hbeo.render.torch_datasets import DepthShards
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.render.views import RenderSettings
@@ -90,7 +91,19 @@ def test_voxelize_nothing_succeeded_raises_with_the_failures(tmp_path):
     ds = datasets.get_dataset(str(_folder(tmp_path / "ds", {"a": BROKEN, "b": COLLINEAR}, good={})))
     with pytest.raises(DataError, match=r"none of the 2 train objects could be voxelized") as err:
         build_gridset(ds, ds.records("train"), "train", cache=tmp_path / "c", progress=False)
-    assert len(err.value.failures) == 2
+    assert isinstance(err.value, BatchError) and len(err.value.failures) == 2
+    back = pickle.loads(pickle.dumps(err.value))          # crossing a process boundary keeps the list
+    assert type(back) is BatchError and back.failures == err.value.failures and str(back) == str(err.value)
+
+
+def test_batch_error_survives_pickling_with_its_failures():
+    failures = [{"file": "a.off", "reason": "no faces", "step": "render", "object": "train/chair/a",
+                 "split": "train", "position": 0}]
+    err = BatchError("out/renders", "none of the 1 train objects could be rendered", failures)
+    back = pickle.loads(pickle.dumps(err))
+    assert isinstance(back, DataError) and back.failures == failures and back.path == "out/renders"
+    assert str(back) == "out/renders: none of the 1 train objects could be rendered"
+    assert BatchError(None, "x").failures == []
 
 
 def _both_splits(root, bad):

@@ -78,7 +78,7 @@ def model_and_view(ci_model, ci_grids):
     model = HBEO.load(ci_model)
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
     rec = ds.records(split="test")[0]
-    rs = replace(RenderSettings.from_dict(model.settings["render"]), views_per_object=1)
+    rs = replace(RenderSettings.from_dict(model.settings.render), views_per_object=1)
     views = ObjectViews(rs)
     try:
         arrays = views.views(rec, 0, ds.classes.index(rec.cls), "test", 0)

@@ -57,6 +57,7 @@ from threadpoolctl import threadpool_limits
 
 from hbeo import conventions as C
 from hbeo.errors import DataError
+from hbeo.baselines.methods import METHODS
 from hbeo.rotations import matrix_to_quaternion, super_fibonacci, uniform_so3, z_angle_to_matrix
 from hbeo.storage import read_npz, write_npz
 from hbeo.subspace.partial import iter_partial
@@ -126,6 +127,14 @@ class BEO:
     P P^T), ``coef_scale_`` (mean per-dimension coefficient variance), ``noise_var_``,
     ``n_train_`` (per class).
     """
+
+    #: the :class:`hbeo.evaluation.method.Method` contract: registry name and pose settings (default first)
+    name = "beo"
+    poses = METHODS["beo"]
+
+    def describe(self) -> dict:
+        """Settings the metrics dict records beyond name and pose: none for a baseline."""
+        return {}
 
     def __init__(self, subspace: ObjectSubspace, n_mixture: int = 1, reg_covar: float = 0.05,
                  pose_bins_1dof: int = 36, so3_grid: int = DEFAULT_SO3_GRID, score: str = "joint",

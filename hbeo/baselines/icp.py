@@ -47,8 +47,9 @@ from scipy.spatial import cKDTree
 
 from hbeo import conventions as C
 from hbeo.errors import DataError
-from hbeo.rotations import (axis_and_angle_to_matrix, axis_angle_to_matrix, geodesic, project_to_so3,
-                            super_fibonacci, z_angle_to_matrix)
+from hbeo.baselines.methods import METHODS
+from hbeo.rotations import (axis_and_angle_to_matrix, axis_angle_to_matrix, check_rotation_matrices, geodesic,
+                            project_to_so3, super_fibonacci, z_angle_to_matrix)
 from hbeo.storage import pack_bits, read_npz, unpack_bits, write_npz
 
 FORMAT_VERSION = 1
@@ -146,6 +147,14 @@ class ICPBaseline:
     (point-to-plane, default) or ``"point"`` (point-to-point). seed: default random stream of
     :meth:`predict_view` (subsampling, 1-DOF yaw offset) and of the model sampling in :meth:`fit`.
     """
+
+    #: the :class:`hbeo.evaluation.method.Method` contract: registry name and pose settings (default first)
+    name = "icp"
+    poses = METHODS["icp"]
+
+    def describe(self) -> dict:
+        """Settings the metrics dict records beyond name and pose: none for a baseline."""
+        return {}
 
     def __init__(self, n_init: int = 48, max_iter: int = 40, n_points: int = 500, trim: float = 0.9,
                  seed: int = 0, n_yaw: int = 12, n_model: int = 4000, n_coarse: int = 150,
@@ -276,8 +285,7 @@ class ICPBaseline:
         if len(pts) < 3:
             raise ValueError(f"depth image shows no object ({len(pts)} pixels with depth > 0; need >= 3)")
         rng = np.random.default_rng(self.seed if rng is None else rng)      # a Generator passes through
-        if len(pts) > self.n_points:
-            pts = pts[rng.choice(len(pts), self.n_points, replace=False)]
+        pts = C.subsample_points(pts, self.n_points, rng)
         P = pts / size                                          # object_size = 1 units
         model, normals, tree = self._model(ci)
 
@@ -289,8 +297,7 @@ class ICPBaseline:
             R_up = np.asarray(R_true, dtype=np.float64)
             if R_up.shape != (3, 3) or not np.isfinite(R_up).all():
                 raise ValueError(f"R_true must be a finite (3, 3) rotation matrix, got shape {R_up.shape}")
-            if np.abs(R_up.T @ R_up - np.eye(3)).max() > 1e-4 or abs(np.linalg.det(R_up) - 1) > 1e-4:
-                raise ValueError("R_true is not a rotation matrix (need orthonormal with det +1 within 1e-4)")
+            check_rotation_matrices(R_up, "R_true")
             yaw = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(self.n_yaw) / self.n_yaw
             R0, axis = R_up @ z_angle_to_matrix(yaw), R_up[:, C.UP_AXIS] / np.linalg.norm(R_up[:, C.UP_AXIS])
         t0 = self._initial_translations(P, R0, model, normals)

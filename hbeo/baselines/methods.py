@@ -1,4 +1,6 @@
-"""The methods compared in the paper, behind one interface for :func:`hbeo.evaluation.evaluate.evaluate_model`.
+"""The registry of the methods compared in the paper (name -> pose settings), and the preparation of
+a run's baselines; each implements :class:`hbeo.evaluation.method.Method` (HBEO through
+:class:`hbeo.evaluation.method.HBEOMethod`), the one interface of :func:`hbeo.evaluation.evaluate.evaluate_method`.
 
 =========  ==========================  =======================================================
 method     pose settings               what it is
@@ -16,8 +18,9 @@ method     pose settings               what it is
 Each lives in one file of the run folder: :attr:`hbeo.rundir.RunDir.model` for ``hbeo``,
 :meth:`hbeo.rundir.RunDir.baseline` for the others.
 
-A baseline answers one view with ``predict_view(depth, intrinsics, R_true, t_true, object_size,
-pose, label_true, rng)`` -> ``{"probabilities": (C,), "rotation": (3, 3), "grid": (30, 30, 30) bool}``.
+A baseline is a class with ``name`` and ``poses`` (class attributes, ``poses = METHODS[name]``),
+``describe()`` and ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true,
+rng)`` -> ``{"probabilities": (C,), "rotation": (3, 3), "grid": (30, 30, 30) bool}``.
 What each may use of the truth is the paper's protocol: BEO and the voxel network get the
 object's translation and size (their input must be voxelized in the object's frame) and, for
 ``known``, its rotation; ``1dof`` gives the up axis and hides the yaw; the settings in
@@ -60,21 +63,22 @@ def load_method(method: str, run, profile="cpu", progress: bool = True, max_step
     ``max_steps`` ends its training after that many optimizer steps) and saved first."""
     check_method(method, None)
     if method == "hbeo":
-        raise ValueError("hbeo is the model itself: pass method=None to evaluate_model")
+        raise ValueError("hbeo is the model itself: wrap it in hbeo.evaluation.method.HBEOMethod "
+                         "(or pass method=None to evaluate_model)")
     run = RunDir.of(run)
     path = run.baseline(method)
     if method == "voxcnn":
         from hbeo.baselines.voxcnn import VoxCNNBaseline, train_voxcnn
         if path.exists():
-            return _named(VoxCNNBaseline.load(path), method)
-        return _named(train_voxcnn(run, profile, progress=progress, max_steps=max_steps), method)
+            return VoxCNNBaseline.load(path)
+        return train_voxcnn(run, profile, progress=progress, max_steps=max_steps)
     from hbeo.baselines.beo import BEO
     from hbeo.baselines.icp import ICPBaseline
     from hbeo.data.gridset import GridSet
     from hbeo.subspace.basis import ObjectSubspace
     cls = BEO if method == "beo" else ICPBaseline
     if path.exists():
-        return _named(cls.load(path), method)
+        return cls.load(path)
     train = GridSet.load(run.grids("train"))
     if method == "beo":
         m = BEO(ObjectSubspace.load(run.subspace), so3_grid=config.get_profile(profile).baselines.beo_so3_grid)
@@ -82,10 +86,6 @@ def load_method(method: str, run, profile="cpu", progress: bool = True, max_step
         m = ICPBaseline()
     m = m.fit(train.grids, train.labels, train.classes)
     m.save(path)
-    return _named(m, method)
-
-
-def _named(m, name: str):
-    m.name = name
-    m.default_pose = METHODS[name][0]
     return m
+
+

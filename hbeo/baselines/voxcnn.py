@@ -43,6 +43,7 @@ from tqdm.auto import tqdm
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.errors import DataError
+from hbeo.baselines.methods import METHODS
 from hbeo.model.loop import TrainConfig, ValidationMeans, train, training_history
 from hbeo.render.torch_datasets import load_shard, split_by_object
 from hbeo.render.renderset import Manifest
@@ -430,6 +431,14 @@ def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progres
 
 class VoxCNNBaseline:
     """A trained VoxCNN with its class names and settings, in one file; known-pose inference."""
+
+    #: the :class:`hbeo.evaluation.method.Method` contract: registry name and pose settings (default first)
+    name = "voxcnn"
+    poses = METHODS["voxcnn"]
+
+    def describe(self) -> dict:
+        """Settings the metrics dict records beyond name and pose: none for a baseline."""
+        return {}
 
     def __init__(self, net: VoxCNN, classes, settings: dict | None = None):
         self.net = net.eval()

@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.data.datasets import Dataset, ObjectRecord
-from hbeo.errors import DataError
+from hbeo.errors import BatchError, DataError
 from hbeo.rundir import RunDir, failure
 from hbeo.storage import pack_bits, read_npz, unpack_bits, write_npz
 from hbeo.data.voxel import voxelize
@@ -242,10 +242,8 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     failures = [failed[i] for i in sorted(failed)]
     good = [i for i in range(len(records)) if i not in failed]
     if records and not good:
-        err = DataError(dataset.name, f"none of the {len(records)} {split} objects could be voxelized; first: "
-                                      f"{failures[0]['file']}: {failures[0]['reason']}")
-        err.failures = failures
-        raise err
+        raise BatchError(dataset.name, f"none of the {len(records)} {split} objects could be voxelized; first: "
+                                       f"{failures[0]['file']}: {failures[0]['reason']}", failures)
     _consolidate(folder, [keys[i] for i in good], rows, files)
     r = settings["resolution"]
     packed = np.stack([rows[keys[i]] for i in good]) if good else np.zeros((0, -(-r ** 3 // 8)), np.uint8)
@@ -290,7 +288,7 @@ def run_gridsets(run, ds: Dataset, prof, progress: bool = True, rebuild: bool = 
             out[split] = build_gridset(ds, datasets.select(ds, split, prof), split, workers=prof.data.workers,
                                        progress=progress)
         except DataError as err:
-            run.write_failures("voxelize", getattr(err, "failures", []), splits=[split])
+            run.write_failures("voxelize", err.failures if isinstance(err, BatchError) else [], splits=[split])
             raise
         out[split].save(path)
         run.write_failures("voxelize", out[split].failures, splits=[split])

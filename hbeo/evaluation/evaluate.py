@@ -42,29 +42,49 @@ or predicted, ``{file, reason, step, object, split}``: left out, the others stil
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from hbeo import __version__
-from hbeo.conventions import UP_SYMMETRY
+from hbeo.baselines.methods import GIVEN_CLASS
+from hbeo.conventions import UP_SYMMETRY, Intrinsics
 from hbeo.data.gridset import record_grid
-from hbeo.errors import DataError
-from hbeo.model.answer import Predictor
+from hbeo.errors import BatchError, DataError
+from hbeo.evaluation.method import HBEOMethod, Method, answer_label
 from hbeo.render.views import object_key
-from hbeo.rotations import geodesic_deg, z_angle_to_matrix
+from hbeo.rotations import geodesic_deg, symmetric_pose_error_deg
 from hbeo.rundir import failure
 from hbeo.subspace.metrics import edt_error, iou, naive_error
 
 
-def symmetric_pose_error(R_pred: np.ndarray, R_true: np.ndarray, order: int) -> np.ndarray:
-    """Geodesic error (degrees) modulo ``order``-fold turns of the object about its up axis (+z):
-    min over k of angle(R_pred, R_true @ Rz(2 pi k / order))."""
-    errs = []
-    for k in range(max(1, order)):
-        Rz = z_angle_to_matrix(2 * np.pi * k / max(1, order))
-        errs.append(geodesic_deg(R_pred, R_true @ Rz))
-    return np.min(errs, axis=0)
+#: the old name of :func:`hbeo.rotations.symmetric_pose_error_deg`, kept while
+#: :mod:`hbeo.lessons.yourdepth` imports it from here
+symmetric_pose_error = symmetric_pose_error_deg
+
+
+@dataclass(frozen=True)
+class EvaluationSetup:
+    """What fixes an evaluation's queries and scoring, apart from the method answering them: the
+    camera (``intrinsics``) and training render settings (``render``, a RenderSettings dict) the
+    views are drawn with, the class names (``classes``, the order of a method's probabilities),
+    the ``profile`` whose validation objects ``split="val"`` means, and optionally ``class_means``
+    ({class: (30, 30, 30) float}: the trivial answer scored as ``completion_baseline``).
+    :meth:`of_model` takes them from an HBEO model; a baseline needs no HBEO model."""
+
+    intrinsics: Intrinsics
+    render: dict
+    classes: tuple
+    profile: str | None = None
+    class_means: dict | None = None
+
+    @classmethod
+    def of_model(cls, model, class_means: bool = True) -> "EvaluationSetup":
+        """The setup an HBEO ``model`` was trained with (its camera, render settings, classes,
+        profile and, with ``class_means``, its subspace's class means)."""
+        means = class_mean_grids(model.subspace) if class_means and getattr(model, "subspace", None) is not None else None
+        return cls(model.intrinsics, dict(model.settings.render), tuple(model.classes), model.settings.profile, means)
 
 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
@@ -72,86 +92,105 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
                    chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1, verify=None) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
-    Views come from :meth:`hbeo.render.views.ObjectViews.query_views` with the model's render settings,
-    ``views`` per object, ``seed``, ``noise`` and (if given) ``sampler``: view j of an object is drawn
-    from a stream keyed by ``seed``, the split, the object's class and id, and j (the paired protocol:
-    every method, object subset and view count sees the same image for the same (object, view)).
-    ``split``: ``train``, ``test`` or ``val`` (:func:`split_records`; its views have a stream of their own).
+    ``model`` (an HBEO model) fixes the evaluation's setup (:meth:`EvaluationSetup.of_model`).
+    ``method``: None for the model itself (:class:`~hbeo.evaluation.method.HBEOMethod` with
+    ``rolls`` and ``verify``), or any :class:`~hbeo.evaluation.method.Method` (a baseline,
+    :mod:`hbeo.baselines.methods`) scored at pose setting ``pose`` (None: its first). See
+    :func:`evaluate_method`, which needs no HBEO model."""
+    if verify is not None and method is not None:
+        raise ValueError("verify applies to HBEO itself, not to a baseline")
+    if method is None:
+        method = HBEOMethod(model, rolls=rolls, verify=verify)
+    return evaluate_method(method, dataset, EvaluationSetup.of_model(model), split=split, views=views, seed=seed,
+                           sampler=sampler, noise=noise, per_class=per_class, progress=progress, chunk=chunk,
+                           pose=pose)
 
-    ``method``: None for the HBEO ``model`` itself, or a baseline (:mod:`hbeo.baselines.methods`) whose
-    ``predict_view(depth, intrinsics, R_true, t_true, object_size, pose, label_true, rng)`` answers
-    each view; ``model`` then only fixes the camera and the views. ``pose``: the baseline's pose
-    setting (``known``, ``1dof``, ``3dof``); HBEO always estimates all three degrees of freedom.
-    ``rolls``: HBEO's test-time roll averaging (:meth:`hbeo.model.inference.HBEO.predict`; bins models).
-    ``verify``: a :class:`hbeo.model.verify.VerifyConfig` to verify HBEO's answers against each view
-    (the runtime then includes it); None: HBEO alone, the paper's method.
-    """
-    from hbeo.baselines.methods import GIVEN_CLASS
+
+def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1,
+                    seed: int = 0, sampler: str | None = None, noise: bool = False, per_class: int | None = None,
+                    progress: bool = True, chunk: int = 64, pose: str | None = None) -> dict:
+    """Render ``views`` query views of each ``split`` object, let ``method`` answer each, score: the
+    metrics dict described in the module docstring (:func:`score_methods`, one method)."""
+    pose = pose or method.poses[0]
+    rows, failures, records, rs = score_methods({method.name: (method, pose)}, dataset, setup, split, views, seed,
+                                                sampler, noise, per_class, progress, chunk,
+                                                desc=f"evaluate {method.name}/{pose} {dataset.name}/{split}")
+    rows = rows[method.name]
+    if not rows:
+        raise BatchError(None, f"{dataset.name}/{split}: no view could be evaluated "
+                               f"({len(failures)} of {len(records)} objects failed)", failures)
+    out = summarize(rows, setup.classes, dataset.name, split, views, seed, rs.sampler, noise,
+                    len(records) - len(failures))
+    out["failures"] = failures
+    extra = {"precision": None, "rolls": None, "verify": None, **method.describe()}
+    out["verify"] = extra["verify"]
+    return {"method": method.name, "pose": pose, "given_class": (method.name, pose) in GIVEN_CLASS,
+            "precision": extra["precision"], "rolls": extra["rolls"], **out}
+
+
+def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1, seed: int = 0,
+                  sampler: str | None = None, noise: bool = False, per_class: int | None = None,
+                  progress: bool = True, chunk: int = 64, desc: str = "evaluate", warm_up: bool = True):
+    """The one evaluation loop: every method of ``methods`` ({key: (Method, pose setting)}) answers
+    the same query views, each rendered once, in order.
+
+    Views come from :meth:`hbeo.render.views.ObjectViews.query_views` with the setup's render
+    settings, ``views`` per object, ``seed``, ``noise`` and (if given) ``sampler``: view j of an
+    object is drawn from a stream keyed by ``seed``, the split, the object's class and id, and j
+    (the paired protocol: every method, object subset and view count sees the same image for the
+    same (object, view)). ``split``: ``train``, ``test`` or ``val`` (:func:`split_records`; its
+    views have a stream of their own). Each method gets what the protocol gives its (name, pose)
+    (:data:`~hbeo.baselines.methods.GIVEN_CLASS`) and ``rng`` seeded by (seed, object, view);
+    ``warm_up``: one untimed call per method first (first-call set-up is not a per-query cost).
+
+    Returns ({key: per-query rows for :func:`summarize`}, failures, records, render settings)."""
     from hbeo.render.views import RenderSettings
     if views < 1:
         raise ValueError(f"views must be >= 1, got {views}")
-    if verify is not None and method is not None:
-        raise ValueError("verify applies to HBEO itself, not to a baseline")
+    for key, (m, pose) in methods.items():
+        if not isinstance(m, Method):
+            raise TypeError(f"{key}: {type(m).__name__} does not implement the Method protocol "
+                            f"(name, poses, predict_view, describe; hbeo.evaluation.method)")
+        if pose not in m.poses:
+            raise ValueError(f"method {m.name!r} does not take pose {pose!r}; it takes {', '.join(m.poses)}")
     over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
-    rs = RenderSettings.from_dict({**model.settings.get("render", {}), **over})
-    K = model.intrinsics
-    classes = tuple(model.classes)
-    means = class_mean_grids(model.subspace) if getattr(model, "subspace", None) is not None else None
-    name, pose = ("hbeo", "3dof") if method is None else (method.name, pose or method.default_pose)
-    records = split_records(dataset, split, per_class, model.settings.get("profile"))
+    rs = RenderSettings.from_dict({**setup.render, **over})
+    K, classes, means = setup.intrinsics, tuple(setup.classes), setup.class_means
+    records = split_records(dataset, split, per_class, setup.profile)
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
     if unknown := sorted({r.cls for r in records} - set(classes)):
         raise ValueError(f"{dataset.name}: classes {', '.join(unknown)} are unknown to the model "
                          f"(it knows {', '.join(classes)})")
-    ask = Predictor(model, rolls, verify) if method is None else None
-    rows, failures = [], []
-    bar = tqdm(total=len(records), desc=f"evaluate {name}/{pose} {dataset.name}/{split}", disable=not progress)
-    warm = False
+    rows, failures = {key: [] for key in methods}, []
+    bar = tqdm(total=len(records), desc=desc, disable=not progress)
+    warm = not warm_up
     for batch in rendered_chunks(rs, records, split, chunk, failures, bar):
         for i, rec, v, truth in batch:
             for j in range(views):
                 depth = v["depth"][j].astype(np.float32)
                 if not (depth > 0).any():
                     continue          # nothing visible (cannot happen with sane settings; never scored as 0)
-                if method is None:
-                    if not warm:      # one untimed call: first-call set-up is not a per-query cost
-                        model.predict(depth, K, rolls=rolls)
-                        warm = True
-                    p = ask(depth, K)[0]
-                    pred, R_pred, grid, ms = p.class_names[0], p.rotation[0], p.grids[0], p.timing_ms["total"]
-                else:
+                for key, (m, pose) in methods.items():
                     query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
                                  object_size=rs.object_size, pose=pose,
-                                 label_true=classes.index(rec.cls) if (name, pose) in GIVEN_CLASS else None)
+                                 label_true=classes.index(rec.cls) if (m.name, pose) in GIVEN_CLASS else None)
                     if not warm:
-                        method.predict_view(depth, K, rng=np.random.default_rng([seed, 1]), **query)
-                        warm = True
+                        m.predict_view(depth, K, rng=np.random.default_rng([seed, 1]), **query)
+                    rng = np.random.default_rng([seed, 2, object_key(rec), j])
                     t0 = time.perf_counter()
-                    out = method.predict_view(depth, K, rng=np.random.default_rng([seed, 2, object_key(rec), j]),
-                                              **query)
-                    ms = (time.perf_counter() - t0) * 1e3
-                    pred = classes[int(np.argmax(out["probabilities"]))]
-                    R_pred, grid = out["rotation"], out["grid"]
-                row = {"object": rec.id, "view": j, "class": rec.cls, "pred": pred, "R_true": v["rotation"][j],
-                       "R_pred": R_pred,
-                       "grid": grid, "truth": truth, "ms": ms}
-                if means is not None:
-                    row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
-                rows.append(row)
+                    out = m.predict_view(depth, K, rng=rng, **query)
+                    ms = out["ms"] if "ms" in out else (time.perf_counter() - t0) * 1e3
+                    pred = classes[answer_label(out)]
+                    row = {"object": rec.id, "view": j, "class": rec.cls, "pred": pred, "R_true": v["rotation"][j],
+                           "R_pred": out["rotation"], "grid": out["grid"], "truth": truth, "ms": ms}
+                    if means is not None:
+                        row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
+                    rows[key].append(row)
+                warm = True
             bar.update(1)
     bar.close()
-    if not rows:
-        err = DataError(None, f"{dataset.name}/{split}: no view could be evaluated "
-                              f"({len(failures)} of {len(records)} objects failed)")
-        err.failures = failures
-        raise err
-    out = summarize(rows, classes, dataset.name, split, views, seed, rs.sampler, noise, len(records) - len(failures))
-    out["failures"] = failures
-    precision = getattr(model, "precision", "float32") if method is None else None
-    out["verify"] = verify.to_dict() if verify is not None else None
-    return {"method": name, "pose": pose, "given_class": (name, pose) in GIVEN_CLASS, "precision": precision,
-            "rolls": rolls if method is None else None, **out}
+    return rows, failures, records, rs
 
 
 def rendered_chunks(rs, records, split: str, chunk: int, failures: list, bar):
@@ -207,7 +246,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
     correct = np.array([r["class"] == r["pred"] for r in rows])
     Rt, Rp = np.stack([r["R_true"] for r in rows]), np.stack([r["R_pred"] for r in rows])
     raw = geodesic_deg(Rp, Rt)
-    sym = np.array([symmetric_pose_error(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
+    sym = np.array([symmetric_pose_error_deg(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
     truth, pred = np.stack([r["truth"] for r in rows]), np.stack([r["grid"] for r in rows])
     edt, nai, io = edt_error(truth, pred), naive_error(truth, pred), iou(truth, pred)
     empty = pred.reshape(len(pred), -1).sum(1) == 0

@@ -173,7 +173,7 @@ def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
     for i, r in enumerate(records):
         first.setdefault(r.cls, (i, r))
     picks = list(first.values())[:n]
-    rs = RenderSettings.from_dict({**model.settings.get("render", {}), "views_per_object": 1, "seed": seed})
+    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": 1, "seed": seed})
     viewer, views = ObjectViews(rs), []
     try:
         for i, r in picks:
@@ -210,7 +210,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     pose = check_method(method, pose)
     model = HBEO.load(model_path, precision=precision)
     folder = RunDir(Path(model_path).parent)
-    profile = model.settings.get("profile", "cpu")
+    profile = model.settings.profile or "cpu"
     ds = load_dataset(dataset, profile)
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
@@ -234,7 +234,7 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
     pe = metrics["pose_error_deg"]
     row = {"time_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
            "model": os.path.basename(str(model_path)), "model_sha256": sha256_file(model_path)[:16],
-           "rotation_head": model.net.cfg.rotation, "augment_roll": bool(model.settings.get("augment_roll", False)),
+           "rotation_head": model.net.cfg.rotation, "augment_roll": model.settings.augment_roll,
            "method": metrics["method"] + ("+verify" if metrics.get("verify") else ""), "pose": metrics["pose"],
            "rolls": metrics.get("rolls"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
            "views": metrics["views"], "seed": metrics["seed"], "n_objects": metrics["n_objects"],

@@ -8,17 +8,14 @@ differ only by their settings. The test split is refused: choices are made on va
 (:func:`hbeo.data.datasets.validation_records`), then the test split is evaluated once per chosen row.
 :func:`sweep_rows` flattens the results into the rows of ``verify_sweep.csv`` beside the model.
 
-May import: foundation, data, render, model and :mod:`hbeo.evaluation.evaluate`.
+May import: foundation, data, render, model, :mod:`hbeo.evaluation.evaluate` and :mod:`hbeo.evaluation.method`.
 """
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 
-import numpy as np
-from tqdm.auto import tqdm
-
-from hbeo.evaluation.evaluate import rendered_chunks, split_records, summarize
+from hbeo.evaluation.evaluate import EvaluationSetup, score_methods, summarize
+from hbeo.evaluation.method import HBEOMethod
 
 
 def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int = 1, seed: int = 0,
@@ -28,54 +25,33 @@ def verify_sweep(model, dataset, configs: dict, split: str = "val", views: int =
     ({name: VerifyConfig or None}) on ``views`` views of ``split``'s objects (``val`` or ``train``;
     the first ``per_class`` of each class when given). ``thresholds``: for each verify candidate
     also ``"<name> min_agreement=<x>"`` for each x, the same candidate with that ``min_agreement``
-    (HBEO's own answer wherever verify's agreement is below x), derived from the same queries."""
-    from hbeo.model.verify import Verifier
-    from hbeo.render.views import RenderSettings
+    (HBEO's own answer wherever verify's agreement is below x), derived from the same queries.
+
+    Every candidate is an :class:`~hbeo.evaluation.method.HBEOMethod` sharing one prediction per
+    view, scored by the evaluation's one loop (:func:`~hbeo.evaluation.evaluate.score_methods`)."""
     if split == "test":
         raise ValueError("verify_sweep chooses settings: run it on 'val' objects, never on the test split")
-    rs = RenderSettings.from_dict({**model.settings.get("render", {}), "views_per_object": views, "seed": seed,
-                                   "noise": False})
-    records = split_records(dataset, split, per_class, model.settings.get("profile"))
-    verifiers = {n: (Verifier(model, c) if c is not None else None) for n, c in configs.items()}
-    rows: dict[str, list] = {n: [] for n in configs}
-    plain, agreement = [], {n: [] for n in configs}
-    failures: list = []
-    K = model.intrinsics
-    bar = tqdm(total=len(records), desc=f"verify sweep {dataset.name}/{split}", disable=not progress)
-    for batch in rendered_chunks(rs, records, split, 64, failures, bar):
-        for i, rec, v, truth in batch:
-            for j in range(views):
-                depth = v["depth"][j].astype(np.float32)
-                if not (depth > 0).any():
-                    continue
-                p = model.predict(depth, K, rolls=rolls)
-                row = {"object": rec.id, "view": j, "class": rec.cls, "R_true": v["rotation"][j], "truth": truth}
-                plain.append({**row, "pred": p.class_names[0], "R_pred": p.rotation[0], "grid": p.grids[0],
-                              "ms": p.timing_ms["total"]})
-                for n, ver in verifiers.items():
-                    if ver is None:
-                        rows[n].append(plain[-1])
-                        continue
-                    x = ver.verify(depth, K, p)
-                    rows[n].append({**row, "pred": model.classes[x["label"]], "R_pred": x["rotation"],
-                                    "grid": x["grid"], "ms": p.timing_ms["total"] + x["ms"]})
-                    agreement[n].append(x["agreement"])
-            bar.update(1)
-    bar.close()
-    derived = {}
+    first = None
+    methods = {}
+    for n, c in configs.items():
+        m = HBEOMethod(model, rolls=rolls, verify=c, share=first)
+        first = first or m
+        methods[n] = m
     for n, c in configs.items():
         if c is None or c.min_agreement > 0:
             continue
         for x in thresholds:
-            name = f"{n} min_agreement={x:g}"
-            derived[name] = replace(c, min_agreement=float(x))
-            rows[name] = [v if a >= x else {**h, "ms": v["ms"]} for v, h, a in zip(rows[n], plain, agreement[n])]
-    configs = {**configs, **derived}
+            methods[f"{n} min_agreement={x:g}"] = HBEOMethod(model, rolls=rolls, verify=c, share=methods[n],
+                                                             min_agreement=float(x))
+    setup = EvaluationSetup.of_model(model, class_means=False)
+    rows, failures, records, rs = score_methods({n: (m, "3dof") for n, m in methods.items()}, dataset, setup, split,
+                                                views, seed, None, False, per_class, progress, 64,
+                                                desc=f"verify sweep {dataset.name}/{split}", warm_up=False)
     out = {}
-    for n, c in configs.items():
-        m = summarize(rows[n], tuple(model.classes), dataset.name, split, views, seed, rs.sampler, False,
-                      len(records) - len(failures))
-        out[n] = {"method": "hbeo", "rolls": rolls, "verify": c.to_dict() if c is not None else None, **m,
+    for n, m in methods.items():
+        summary = summarize(rows[n], tuple(model.classes), dataset.name, split, views, seed, rs.sampler, False,
+                            len(records) - len(failures))
+        out[n] = {"method": "hbeo", "rolls": rolls, "verify": m.describe()["verify"], **summary,
                   "failures": failures}
     return out
 

@@ -247,7 +247,7 @@ def object_view(run, cls: str | None = None, index: int = 0, view: int = 0) -> V
         raise ValueError(f"index must be in 0..{len(records) - 1} for the {len(records)} test objects of {cls!r}, "
                          f"got {index}")
     rec = records[index]
-    rs = RenderSettings.from_dict({**model.settings.get("render", {}), "views_per_object": 1, "seed": SEED})
+    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": 1, "seed": SEED})
     views = ObjectViews(rs)
     try:
         v = views.query_views(rec, "test", view + 1)
@@ -275,14 +275,14 @@ def frame_view(model, frame, answer) -> View3D:
     ``truth`` with ``rotation`` and ``translation``), ``answer`` a :class:`hbeo.model.inference.Prediction` of
     that one image. The points are moved with the predicted pose; with the true pose too (hidden at first) when
     the frame knows it. No true grid."""
-    size = float(model.settings["object_size"]) * float(answer.scale[0])
+    size = float(model.settings.object_size) * float(answer.scale[0])
     depth = frame.object_depth
     pts = depth_points(depth, frame.intrinsics, answer.rotation[0], answer.translation[0], size)
     truth = getattr(frame, "truth", None) or {}
     other = None
     if "rotation" in truth and "translation" in truth:
         other = depth_points(depth, frame.intrinsics, truth["rotation"], truth["translation"],
-                             float(model.settings["object_size"]))
+                             float(model.settings.object_size))
     label = f"HBEO completion ({answer.class_names[0]})"
     return View3D(completion=answer.grids[0], points=pts, pose="HBEO's predicted pose", other_points=other,
                   other_pose="true pose" if other is not None else None, completion_label=label,

@@ -81,7 +81,7 @@ def _path(p) -> Path:
 
 def training_distances(model) -> tuple[float, float]:
     """The range (m) of object-centre distances the model's training images had."""
-    d = (model.settings.get("render") or {}).get("distance") or DEFAULT_DISTANCE
+    d = model.settings.render.get("distance") or DEFAULT_DISTANCE
     return float(min(d)), float(max(d))
 
 
@@ -114,7 +114,7 @@ def sample_frame(run, model) -> Frame:
     K = Intrinsics.kinect(*SAMPLE_SIZE)
     R = yaw_elevation_to_matrix(math.radians(SAMPLE_VIEW_DEG[0]), math.radians(SAMPLE_VIEW_DEG[1]))
     t = np.array([0.0, 0.0, float(np.mean(training_distances(model)))])
-    size = float(model.settings["object_size"])
+    size = float(model.settings.object_size)
     with Renderer(K) as r:
         clean = r.render(prepare_mesh(mesh, size), R, t)
     noisy = SensorNoise().apply(clean, K, np.random.default_rng(SAMPLE_SEED))
@@ -230,14 +230,14 @@ def checks(model, frame: Frame, pred) -> pd.DataFrame:
     med = float(np.median(d[d > 0]))
     fov = math.degrees(2 * math.atan(K.width / (2 * K.fx)))
     fov_m = math.degrees(2 * math.atan(Km.width / (2 * Km.fx)))
-    view = to_model_view(frame.depth, K, Km, frame.mask, recenter=model.settings["recenter"],
-                         ref_distance=model.settings["ref_distance"])
+    view = to_model_view(frame.depth, K, Km, frame.mask, recenter=model.settings.recenter,
+                         ref_distance=model.settings.ref_distance)
     lo, hi = training_distances(model)
     n_obj = int((d > 0).sum())
     pts, _ = backproject(d, K)
     extent = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
-    size = float(model.settings["object_size"])
-    noise = (model.settings.get("render") or {}).get("noise", False)
+    size = float(model.settings.object_size)
+    noise = model.settings.render.get("noise", False)
     warns = list(pred.warnings[0]) if pred.warnings else []
     d_lo, d_hi = DEPTH_RANGE_M
     rows = [("depth units", f"median object depth {med:.3f} m",
@@ -271,7 +271,7 @@ def input_figure(model, frame: Frame):
     import matplotlib.pyplot as plt
     from hbeo.model.preprocess import to_model_view
     view = to_model_view(frame.depth, frame.intrinsics, model.intrinsics, frame.mask,
-                         recenter=model.settings["recenter"], ref_distance=model.settings["ref_distance"])
+                         recenter=model.settings.recenter, ref_distance=model.settings.ref_distance)
     fig, ax = plt.subplots(1, 3, figsize=(12, 3.4), gridspec_kw={"width_ratios": [1.25, 1, 1]})
     d = np.ma.masked_less_equal(frame.depth, 0)
     im = ax[0].imshow(d, cmap="viridis_r")
@@ -293,7 +293,7 @@ def input_figure(model, frame: Frame):
 def _completion_points(model, pred) -> np.ndarray:
     """The completed shape's surface points (N, 3), camera frame, metres, placed at the predicted pose."""
     from hbeo.model.verify import surface_points
-    size = float(model.settings["object_size"]) * float(pred.scale[0])
+    size = float(model.settings.object_size) * float(pred.scale[0])
     pts = surface_points(pred.grids[0], size)
     return pts @ pred.rotation[0].T + pred.translation[0]
 
@@ -339,7 +339,7 @@ def overlay_figure(model, frame: Frame, pred):
     from hbeo.model.verify import shape_depth, surface_points
     obs, _ = backproject(frame.object_depth, frame.intrinsics)
     comp = _completion_points(model, pred)
-    size = float(model.settings["object_size"]) * float(pred.scale[0])
+    size = float(model.settings.object_size) * float(pred.scale[0])
     syn = shape_depth(surface_points(pred.grids[0], size), pred.rotation[0], pred.translation[0], frame.intrinsics)
     fig, ax = plt.subplots(1, 4, figsize=(16, 3.9), gridspec_kw={"width_ratios": [1.3, 1, 1, 0.9]})
     ax[0].imshow(np.ma.masked_less_equal(frame.object_depth, 0), cmap="Greys")

@@ -3,8 +3,9 @@
 :class:`Predictor` is the one "predict then verify" set-up: the network's answer
 (:meth:`hbeo.model.inference.HBEO.predict`, ``rolls`` camera rolls averaged) checked against the depth by
 :class:`hbeo.model.verify.Verifier` (its per-model set-up done once) when a :class:`VerifyConfig` is given;
-the CLI's ``predict``, the evaluation (:func:`hbeo.evaluation.evaluate.evaluate_model`) and notebook 08
-(:mod:`hbeo.lessons.yourdepth`) all use it. :func:`predict_file` reads a depth file (and mask) as
+the CLI's ``predict`` and notebook 08 (:mod:`hbeo.lessons.yourdepth`) use it; the evaluation's
+:class:`hbeo.evaluation.method.HBEOMethod` drives the same :class:`~hbeo.model.verify.Verifier` per view, sharing
+one network answer between the verify settings of a sweep. :func:`predict_file` reads a depth file (and mask) as
 ``python -m hbeo predict`` does and returns an :class:`Answer`, whose :meth:`Answer.to_json` is ``predict
 --out``'s JSON.
 

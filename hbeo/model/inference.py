@@ -32,7 +32,7 @@ from hbeo.model.augment import roll_depth
 from hbeo.conventions import Intrinsics
 from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.errors import DataError
-from hbeo.model.modelfile import read_model, write_model
+from hbeo.model.modelfile import ModelSettings, read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import View, to_model_view
 from hbeo.model.depthfile import DEPTH_RANGE_M
@@ -93,20 +93,22 @@ class Prediction:
 class HBEO:
     """A trained model: network + subspace + camera + classes + preprocessing settings.
 
-    settings: ``object_size`` (m, training objects' longest side), ``recenter`` (turn the view
-    to the object), ``ref_distance`` (m or None: distance normalization), and optional
-    ``coeff_mean`` / ``coeff_std`` (k,) with which the network's coefficient output is
-    de-standardized.
+    settings: a :class:`~hbeo.model.modelfile.ModelSettings` (or a dict of its fields, the rest
+    default): ``object_size`` (m, training objects' longest side), ``recenter`` (turn the view
+    to the object), ``ref_distance`` (m or None: distance normalization), ``coeff_mean`` /
+    ``coeff_std`` (k,) with which the network's coefficient output is de-standardized, and
+    what the model was trained on (``render``, ``profile``, ...). ``self.settings`` is the
+    frozen dataclass; read its attributes.
     """
 
     def __init__(self, net: HBEONet, subspace: ObjectSubspace, intrinsics: Intrinsics, classes,
-                 settings: dict | None = None, precision: str = "float32"):
+                 settings: ModelSettings | dict | None = None, precision: str = "float32"):
         # channels_last: oneDNN's fast convolution layout on CPU (convolutions ~1.7x faster at 320x240)
         self.net = net.eval().to(memory_format=torch.channels_last)
         self.subspace = subspace
         self.intrinsics = intrinsics
         self.classes = tuple(classes)
-        self.settings = {"object_size": 1.0, "recenter": True, "ref_distance": None, **(settings or {})}
+        self.settings = ModelSettings.from_dict(settings or {})
         if net.cfg.n_coeffs != subspace.dim_:
             raise ValueError(f"network predicts {net.cfg.n_coeffs} coefficients, the subspace has {subspace.dim_}")
         if net.cfg.n_classes != len(self.classes):
@@ -139,7 +141,7 @@ class HBEO:
         """Write the model to one file, atomically (:mod:`hbeo.model.modelfile`; float32 weights
         whatever the precision)."""
         meta = {"net_cfg": self.net.cfg.to_dict(), "classes": list(self.classes),
-                "intrinsics": asdict(self.intrinsics), "settings": self.settings}
+                "intrinsics": asdict(self.intrinsics), "settings": self.settings.to_dict()}
         return write_model(path, "hbeo", meta, self.net.state_dict(), self.subspace)
 
     @classmethod
@@ -152,7 +154,10 @@ class HBEO:
         mf = read_model(path, "hbeo", _build_net)
         m = mf.meta
         try:
-            return cls(mf.net, mf.subspace, Intrinsics(**m["intrinsics"]), m["classes"], m["settings"], precision)
+            settings = ModelSettings.from_dict(m["settings"], path)
+            return cls(mf.net, mf.subspace, Intrinsics(**m["intrinsics"]), m["classes"], settings, precision)
+        except DataError:
+            raise
         except (TypeError, ValueError) as err:
             raise DataError(path, f"inconsistent model file ({err})") from None
 
@@ -178,8 +183,8 @@ class HBEO:
         if len(masks) != len(batch):
             raise ValueError(f"{len(masks)} masks for {len(batch)} depth images")
         s = self.settings
-        views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s["recenter"],
-                               ref_distance=s["ref_distance"]) for d, m in zip(batch, masks)]
+        views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s.recenter,
+                               ref_distance=s.ref_distance) for d, m in zip(batch, masks)]
         warns = [self._check_view(v, i if len(views) > 1 else None) for i, v in enumerate(views)]
         x = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]
@@ -203,11 +208,11 @@ class HBEO:
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
         coeffs = out["coeffs"].numpy().astype(np.float64)
-        if s.get("coeff_std") is not None:
-            coeffs = coeffs * np.asarray(s["coeff_std"]) + np.asarray(s["coeff_mean"])
+        if s.coeff_std is not None:
+            coeffs = coeffs * np.asarray(s.coeff_std) + np.asarray(s.coeff_mean)
         grids = self.subspace.reconstruct(coeffs.astype(np.float32), threshold=0.5)
         t3 = time.perf_counter()
-        scale = np.array([v.distance / s["ref_distance"] if s["ref_distance"] else 1.0 for v in views])
+        scale = np.array([v.distance / s.ref_distance if s.ref_distance else 1.0 for v in views])
         trans = np.stack([v.center / np.linalg.norm(v.center) * v.distance for v in views])
         labels = probs.argmax(1)
         return Prediction(probs, labels, [self.classes[i] for i in labels], R, matrix_to_axis_angle(R), trans,
@@ -234,8 +239,8 @@ class HBEO:
         K = self.intrinsics
         if v.filled < max(16, MIN_INPUT_FRACTION * K.width * K.height):
             out.append(f"the object fills only {v.filled} of the model's {K.width}x{K.height} input pixels")
-        dist = self.settings.get("render", {}).get("distance")
-        if dist and not self.settings["ref_distance"]:
+        dist = self.settings.render.get("distance")
+        if dist and not self.settings.ref_distance:
             d_lo, d_hi = float(min(dist)), float(max(dist))
             if not d_lo / DISTANCE_FACTOR <= v.distance <= d_hi * DISTANCE_FACTOR:
                 out.append(f"the object is {v.distance:.2f} m away; the model was trained at {d_lo:g}..{d_hi:g} m")
@@ -258,7 +263,7 @@ class HBEO:
         from hbeo.render.renderer import grid_mesh
         if not pred.grids[i].any():
             raise ValueError("the completed grid is empty (no coefficient combination above 0.5)")
-        mesh = grid_mesh(pred.grids[i], object_size=self.settings["object_size"] * float(pred.scale[i]))
+        mesh = grid_mesh(pred.grids[i], object_size=self.settings.object_size * float(pred.scale[i]))
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = pred.rotation[i], pred.translation[i]
         mesh.apply_transform(T)

@@ -11,7 +11,8 @@ Format (``format_version`` 2): a zip archive whose members are stored uncompress
     ``kind`` = ``"hbeo"`` or ``"voxcnn"``, ``hbeo_version`` (the writer's), ``net_cfg`` (the
     network's configuration: :class:`~hbeo.model.network.NetConfig` or ``VoxCNNConfig`` as a
     dict), ``classes`` (names, in the network's output order), ``settings`` (preprocessing and
-    inference settings, plain JSON values), ``intrinsics`` (kind ``hbeo`` only: ``fx, fy, cx, cy``
+    inference settings, plain JSON values; kind ``hbeo``: :class:`ModelSettings`, whose
+    ``from_dict`` refuses unknown keys and wrong types, naming the file), ``intrinsics`` (kind ``hbeo`` only: ``fx, fy, cx, cy``
     in pixels, ``width, height``: the camera the model was trained for) and, in a converted
     file, ``converted_from`` (``format_version`` and ``hbeo_version`` of the old file).
 ``weights.safetensors``
@@ -42,10 +43,11 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Mapping
 
@@ -69,6 +71,118 @@ _META_KEYS = {"format": str, "format_version": int, "kind": str, "hbeo_version":
 _INTRINSICS = ("fx", "fy", "cx", "cy", "width", "height")
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 CONVERT_HINT = "python -m hbeo convert-model"
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _vector(value, name: str):
+    """(k,) finite numbers (list, tuple or array) -> tuple of floats; None passes through."""
+    if value is None:
+        return None
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)) or not value or not all(_number(v) for v in value):
+        raise ValueError(f"settings: {name} must be a non-empty list of numbers or null, got {_type(value)}")
+    if not all(math.isfinite(v) for v in value):
+        raise ValueError(f"settings: {name} holds NaN or infinite values")
+    return tuple(float(v) for v in value)
+
+
+def _type(value) -> str:
+    return type(value).__name__ if not isinstance(value, (list, tuple)) else f"{type(value).__name__} of {len(value)}"
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    """An HBEO model file's preprocessing and inference settings (``meta.json`` ``settings``): one
+    typed field each, with the one default a file that lacks the key has always meant (every file
+    :func:`hbeo.model.fit.fit_model` wrote holds every key it knew; these defaults are what the
+    reader, ``HBEO(...)``, filled in since format 1).
+
+    ``object_size``
+        metres: the training objects' longest side (1.0).
+    ``recenter``
+        turn the view to look straight at the object before the network sees it (True: the
+        reader's default since the first model file; a training run's ``--recenter`` option
+        defaults to off, and fit records what it used).
+    ``ref_distance``
+        metres, or None: the distance normalization's reference distance (None: none).
+    ``coeff_mean`` / ``coeff_std``
+        (k,) or None: the network's coefficient output is ``coeffs * std + mean`` (both or neither;
+        None: the output is the coefficients).
+    ``render``
+        the training images' :class:`hbeo.render.views.RenderSettings` as a dict ({}: unknown);
+        evaluation renders its queries with it and inference warns outside its distances.
+    ``profile``
+        the profile the model was trained with, or None (not recorded: the whole split).
+    ``augment_roll``
+        trained with random camera rolls (False: before the option existed, no rolls).
+    ``shape_loss``
+        the shape term trained (``"coeffs"``: before the option existed, the coefficient loss).
+
+    Frozen: a model's settings are what its file says. :meth:`from_dict` / :meth:`to_dict` are the
+    file's reader and writer."""
+
+    object_size: float = 1.0
+    recenter: bool = True
+    ref_distance: float | None = None
+    coeff_mean: tuple | None = None
+    coeff_std: tuple | None = None
+    render: dict = field(default_factory=dict)
+    profile: str | None = None
+    augment_roll: bool = False
+    shape_loss: str = "coeffs"
+
+    def __post_init__(self):
+        def bad(name, want, value):
+            raise ValueError(f"settings: {name} must be {want}, got {_type(value)} {value!r:.40}")
+        set_ = object.__setattr__
+        if not _number(self.object_size) or not self.object_size > 0:
+            bad("object_size", "a positive number (metres)", self.object_size)
+        set_(self, "object_size", float(self.object_size))
+        if self.ref_distance is not None:
+            if not _number(self.ref_distance) or not self.ref_distance > 0:
+                bad("ref_distance", "a positive number (metres) or null", self.ref_distance)
+            set_(self, "ref_distance", float(self.ref_distance))
+        for name in ("recenter", "augment_roll"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                bad(name, "true or false", getattr(self, name))
+            set_(self, name, bool(getattr(self, name)))
+        set_(self, "coeff_mean", _vector(self.coeff_mean, "coeff_mean"))
+        set_(self, "coeff_std", _vector(self.coeff_std, "coeff_std"))
+        if (self.coeff_mean is None) != (self.coeff_std is None) or (
+                self.coeff_mean is not None and len(self.coeff_mean) != len(self.coeff_std)):
+            raise ValueError("settings: coeff_mean and coeff_std must be given together, of one length")
+        if not isinstance(self.render, dict) or not all(isinstance(k, str) for k in self.render):
+            bad("render", "an object (the render settings)", self.render)
+        if self.profile is not None and not isinstance(self.profile, str):
+            bad("profile", "a profile name or null", self.profile)
+        if not isinstance(self.shape_loss, str):
+            bad("shape_loss", "a shape loss name", self.shape_loss)
+
+    @classmethod
+    def from_dict(cls, data, source=None) -> "ModelSettings":
+        """From ``meta.json``'s ``settings`` (or an in-memory dict: arrays allowed). Keys left out take
+        their defaults; an unknown key or a wrong type raises :class:`~hbeo.errors.DataError`
+        naming ``source`` (the file; None: no file) and the key."""
+        if isinstance(data, cls):
+            return data
+        if not isinstance(data, Mapping):
+            raise DataError(source, f"{META}: \"settings\" must be an object, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        if unknown := sorted(set(data) - known):
+            raise DataError(source, f"{META}: settings: unknown keys {', '.join(map(str, unknown))} "
+                                    f"(known: {', '.join(f.name for f in fields(cls))})")
+        try:
+            return cls(**data)
+        except ValueError as err:
+            raise DataError(source, f"{META}: {err}") from None
+
+    def to_dict(self) -> dict:
+        """Plain JSON values, every field, in field order (what :meth:`from_dict` reads back)."""
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v) for f in fields(self)}
 
 
 @dataclass

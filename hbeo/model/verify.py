@@ -218,7 +218,7 @@ class Verifier:
         W = sub.basis_.astype(np.float64)
         self.k = W.shape[1]
         self.projector = MaskedProjector(sub.basis_)
-        std = model.settings.get("coeff_std")
+        std = model.settings.coeff_std
         self.coeff_std = np.asarray(std, np.float64) if std is not None else np.ones(self.k)
         # each class's VBPCA density in the subspace: mean a_c (k,) and precision (k, k)
         self.class_mean, self.class_prec, self.class_logdet = [], [], []
@@ -260,7 +260,7 @@ class Verifier:
         top = np.argsort(-probs)[:cfg.classes]
         o_net = np.asarray(pred.coeffs[i], np.float64)
         P_net = 1.0 / (cfg.prior_scale * self.coeff_std) ** 2                          # (k,)
-        size = model.settings["object_size"] * float(pred.scale[i])
+        size = model.settings.object_size * float(pred.scale[i])
         scores = np.full((len(Rs), len(top)), -np.inf)
         coeffs = np.zeros((len(Rs), len(top), self.k))
         ts = np.repeat(np.asarray(pred.translation[i], np.float64)[None], len(Rs), axis=0)

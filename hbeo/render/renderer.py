@@ -34,6 +34,7 @@ import trimesh
 from hbeo import conventions as C
 from hbeo.errors import DataError
 from hbeo.data.meshio import check_mesh
+from hbeo.rotations import check_rotation_matrices
 
 BACKENDS = ("embree", "pyrender")
 GL_PLATFORMS = ("egl", "osmesa")
@@ -236,14 +237,7 @@ def _check_poses(Rs, ts):
         raise ValueError(f"{len(Rs)} rotations but {len(ts)} translations")
     if not (np.isfinite(Rs).all() and np.isfinite(ts).all()):
         raise ValueError("pose contains NaN or infinity")
-    err = np.abs(np.einsum("nji,njk->nik", Rs, Rs) - np.eye(3)).max(axis=(1, 2)) if len(Rs) else np.zeros(0)
-    det = np.linalg.det(Rs) if len(Rs) else np.zeros(0)
-    bad = np.nonzero((err > 1e-4) | (np.abs(det - 1.0) > 1e-4))[0]
-    if len(bad):
-        i = int(bad[0])
-        raise ValueError(f"R[{i}] is not a rotation matrix (|R^T R - I| = {err[i]:.2g}, det = {det[i]:.6g}; "
-                         f"need orthonormal with det +1 within 1e-4)")
-    return Rs, ts
+    return check_rotation_matrices(Rs), ts
 
 
 def _delete_offscreen(offscreen):

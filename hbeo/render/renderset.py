@@ -37,8 +37,8 @@ Bad objects
     shard holds the other objects' views, and the manifest lists it under ``failed``
     (``{file, reason, step, object, split, position}``, :attr:`Manifest.failures`). It keeps its
     position in ``object_ids`` (so ``object_index`` still indexes that list) with no image
-    (:meth:`Manifest.image_objects`). If no object at all renders, DataError (its ``failures``
-    attribute lists them) and no manifest.
+    (:meth:`Manifest.image_objects`). If no object at all renders, :class:`~hbeo.errors.BatchError`
+    (its ``failures`` attribute lists them) and no manifest.
 
 Resuming
     A shard is written under a temporary name and renamed into place, then a
@@ -66,7 +66,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hbeo import __version__
-from hbeo.errors import DataError
+from hbeo.errors import BatchError, DataError
 from hbeo.rundir import RENDER_MANIFEST, failure
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
@@ -483,10 +483,8 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     rendered = sum(info[k]["n_images"] for k in todo)
     failed = sorted((f for k in todo for f in info[k].get("failed", [])), key=lambda f: f["position"])
     if not any(i["n_images"] for i in info.values()):
-        err = DataError(out, f"none of the {len(records)} {split} objects could be rendered; first: "
-                             f"{failed[0]['file']}: {failed[0]['reason']}")
-        err.failures = failed
-        raise err
+        raise BatchError(out, f"none of the {len(records)} {split} objects could be rendered; first: "
+                              f"{failed[0]['file']}: {failed[0]['reason']}", failed)
     bad = {f["position"] for f in failed}
 
     counts = {c: 0 for c in dataset.classes}

@@ -39,6 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from hbeo import conventions as C
+from hbeo.rotations import check_rotation_matrices
 
 _SPHERE = float(np.sqrt(3.0) / 2.0)    #: bounding-sphere radius of a voxel, in edges
 _ROUNDING = float(np.sqrt(0.5))       #: distance from a projected point to its nearest pixel centre, at most
@@ -75,15 +76,7 @@ def _check_rotations(Rs) -> np.ndarray:
         raise ValueError(f"rotations must have shape (M, 3, 3), got {Rs.shape}")
     if not np.isfinite(Rs).all():
         raise ValueError("rotation contains NaN or infinity")
-    if len(Rs):
-        err = np.abs(np.einsum("nji,njk->nik", Rs, Rs) - np.eye(3)).max(axis=(1, 2))
-        det = np.linalg.det(Rs)
-        bad = np.nonzero((err > 1e-4) | (np.abs(det - 1.0) > 1e-4))[0]
-        if len(bad):
-            i = int(bad[0])
-            raise ValueError(f"R[{i}] is not a rotation matrix (|R^T R - I| = {err[i]:.2g}, det = {det[i]:.6g}; "
-                             f"need orthonormal with det +1 within 1e-4)")
-    return Rs
+    return check_rotation_matrices(Rs)
 
 
 def _check_common(t, object_size, resolution):
