@@ -278,7 +278,7 @@ class Run:
                     "resumed_from_step": resumed, "n_params": model.net.n_params()}
             if opts.changed():
                 info["options"] = opts.changed()
-            atomic_text(self.dir.training(path) / "provenance.json", json.dumps(info, indent=1))
+            atomic_text(self.dir.training_provenance(path), json.dumps(info, indent=1))
         return Trained(model, path, resumed)
 
     def model(self, progress: bool = True):

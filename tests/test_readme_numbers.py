@@ -79,13 +79,15 @@ def test_readme_blocks_are_what_the_committed_run_gives(begin, end, fn):
     assert BEGIN in text and END in text                          # the model table (checked in test_model_table)
 
 
-def test_reproduction_md_is_generated_from_the_committed_run():
-    out = ROOT / "paper" / "REPRODUCTION.md"
+@pytest.mark.parametrize("where", ["paper", "run"])
+def test_reproduction_md_is_generated_from_the_committed_run(where):
+    """paper/REPRODUCTION.md and the run folder's own copy both equal the generator's output at HEAD."""
+    out = ROOT / "paper" / "REPRODUCTION.md" if where == "paper" else RUN.path / "REPRODUCTION.md"
+    fix = " --out paper/REPRODUCTION.md" if where == "paper" else ""
     assert out.read_text() == report.reproduction_text(RUN, out), \
-        ("stale paper/REPRODUCTION.md: run python -m hbeo report --run results/cpu-modelnet10-vox30 "
-         "--out paper/REPRODUCTION.md")
+        f"stale {out}: run python -m hbeo report --run results/cpu-modelnet10-vox30{fix}"
     for link in re.findall(r"\]\(([^)#]+)\)", out.read_text()):
-        assert (out.parent / link).exists(), f"REPRODUCTION.md links to a missing file: {link}"
+        assert (out.parent / link).exists(), f"{out} links to a missing file: {link}"
 
 
 def test_deviations_say_what_the_run_used(tmp_path):

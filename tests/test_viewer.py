@@ -10,6 +10,7 @@ from scipy import ndimage
 from hbeo import conventions as C
 from hbeo.report import book
 from hbeo.lessons import viewer
+from hbeo.model.modelfile import ModelSettings
 from hbeo.rotations import yaw_elevation_to_matrix
 from hbeo.rundir import RunDir
 
@@ -138,7 +139,7 @@ def test_frame_view_moves_the_points_with_the_predicted_pose():
                             truth={"rotation": np.eye(3), "translation": t})
     answer = SimpleNamespace(rotation=R[None], translation=t[None], scale=np.ones(1), grids=_chair_like()[None],
                              class_names=["chair"], probabilities=np.array([[0.7, 0.3]]))
-    model = SimpleNamespace(settings={"object_size": 1.0})
+    model = SimpleNamespace(settings=ModelSettings(object_size=1.0))
     v = viewer.frame_view(model, frame, answer)
     assert v.truth is None and v.pose == "HBEO's predicted pose" and v.other_pose == "true pose"
     np.testing.assert_allclose(v.points, viewer.depth_points(depth, K, R, t, 1.0))
