@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Make what the device job needs to travel to a lent GPU machine, in .device/ (ignored by git, named in
+# the device tool's `carry`): the 30^3 grid file and wheels of what the device image lacks (its Python is
+# 3.12 with numpy 2 and torch 2.11 + CUDA; trimesh, embreex and pooch are not there). Then, on the device:
+#     bash scripts/device_job.sh            (see scripts/device_job.py; README "Paper scale on one GPU")
+# Usage: bash scripts/device_prepare.sh [DEST]       (DEST default .device; WHEELS=0 skips the downloads)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DEST=${1:-.device}
+PY=${PY:-python3}
+mkdir -p "$DEST/whl"
+GRID=$($PY -c "from hbeo import config; print(config.vox30_path())")
+cp "$GRID" "$DEST/modelnet10_vox30.npz"
+echo "grids: $GRID -> $DEST/modelnet10_vox30.npz"
+if [ "${WHEELS:-1}" != "0" ]; then
+  # pure-Python or cp312 manylinux wheels, pinned to requirements.txt's versions where the lock has them
+  pin() { grep -E "^$1==" requirements.txt | head -1 || echo "$1"; }
+  for pkg in trimesh pooch embreex; do
+    spec=$(pin "$pkg")
+    $PY -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+      --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+      --platform any -d "$DEST/whl" "$spec"
+  done
+fi
+du -sh "$DEST" | awk '{print "to carry: " $2 " (" $1 "; the device tool carries 64 MiB at most)"}'

@@ -1,0 +1,83 @@
+"""The device job (scripts/device_job.py, device_prepare.sh, device_job.sh) on this CPU with the ``ci`` profile:
+the same scripts a lent GPU machine runs. A call that runs out of waiting leaves the worker running and exits 3;
+a later call waits on; a worker killed mid-training is restarted from its checkpoint; the packed files fit the
+device tool's transfer limits (at most 8 files, 16 MiB each) and the model parts join to the run's model."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+JOB = ROOT / "scripts" / "device_job.py"
+
+
+def _job(run, out, *extra, wait=600):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, str(JOB), "--profile", "ci", "--dataset", "procedural", "--run", str(run),
+                           "--out", str(out), "--wait", str(wait), "--checkpoint-every", "5", *extra],
+                          capture_output=True, text=True, env=env, timeout=900)
+
+
+@pytest.mark.slow
+def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_under_the_limits(tmp_path):
+    run, out = tmp_path / "run", tmp_path / "out"
+    first = _job(run, out, wait=0)                       # starts the worker, returns at once
+    assert first.returncode == 3, first.stdout + first.stderr
+    assert "still running" in first.stdout
+    state = json.loads((run / "job_state.json").read_text())
+    ckpt = run / "train_model" / "checkpoint.pt"
+    deadline = time.time() + 600
+    while not ckpt.exists() and time.time() < deadline:  # the first checkpoint, then cut the worker
+        time.sleep(0.5)
+    assert ckpt.exists(), (run / "job.log").read_text()[-3000:]
+    state = json.loads((run / "job_state.json").read_text())
+    os.killpg(os.getpgid(state["pid"]), signal.SIGKILL)
+    time.sleep(1)
+    second = _job(run, out)                              # restarts it from the checkpoint and waits to the end
+    assert second.returncode == 0, second.stdout + second.stderr + (run / "job.log").read_text()[-3000:]
+    assert "restarting it from its checkpoint" in second.stdout
+    lease = json.loads((out / "lease.json").read_text())
+    assert lease["status"] == "done" and lease["profile"] == "ci"
+    assert lease["resumed_from_step"] and lease["resumed_from_step"] > 0
+    assert lease["images_seen"] == lease["steps"] * lease["batch_size"] > 0
+    assert lease["device"].startswith("cpu")
+    assert 0 < lease["metrics"]["n_queries"] and 0 <= lease["metrics"]["class_mean_accuracy"] <= 1
+    files = sorted(out.iterdir())
+    assert len(files) <= 8 and all(f.stat().st_size <= 16 * 2**20 for f in files)
+    assert {"lease.json", "eval_hbeo_3dof.json", "train_log.csv", "provenance.json", "job.log"} <= {f.name for f in files}
+    joined = b"".join(p.read_bytes() for p in sorted(out.glob("model.hbeo.part*")))
+    assert joined == (run / "model.hbeo").read_bytes()
+    third = _job(run, tmp_path / "out2")                 # finished: a later call only packs again
+    assert third.returncode == 0 and "started" not in third.stdout
+
+
+def test_device_job_splits_a_model_over_15_mib_into_parts(tmp_path, monkeypatch):
+    sys.path.insert(0, str(JOB.parent))
+    import device_job
+    run = tmp_path / "run"
+    run.mkdir()
+    blob = os.urandom(2 * device_job.PART_BYTES + 123)
+    (run / "model.hbeo").write_bytes(blob)
+    files = device_job.pack(run, tmp_path / "out", {"status": "done"})
+    parts = sorted((tmp_path / "out").glob("model.hbeo.part*"))
+    assert [p.stat().st_size for p in parts] == [device_job.PART_BYTES, device_job.PART_BYTES, 123]
+    assert b"".join(p.read_bytes() for p in parts) == blob
+    lease = json.loads((tmp_path / "out" / "lease.json").read_text())
+    assert lease["model_bytes"] == len(blob) and len(lease["model_sha256"]) == 64
+    assert len(files) == 4
+
+
+def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_file):
+    env = {**os.environ, "WHEELS": "0", "HBEO_VOX30": str(vox30_file), "PY": sys.executable,
+           "PYTHONPATH": str(ROOT)}
+    dest = tmp_path / "dev"
+    r = subprocess.run(["bash", str(ROOT / "scripts" / "device_prepare.sh"), str(dest)], capture_output=True,
+                       text=True, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert (dest / "modelnet10_vox30.npz").read_bytes() == Path(vox30_file).read_bytes()
+    assert "to carry" in r.stdout
