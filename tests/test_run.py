@@ -31,7 +31,8 @@ def _count(monkeypatch):
 
 def test_the_train_command_resolves_the_profile_and_dataset_once_and_records_provenance(
         ci_render, ci_run, copy_run, tmp_path, monkeypatch):
-    run = copy_run(ci_run, tmp_path / "run")
+    run = copy_run(ci_run, tmp_path / "run", names=["grids_train.npz", "grids_test.npz", "subspace.npz",
+                                                    "render_train"])      # no model or checkpoint of the ci run
     calls = _count(monkeypatch)
     assert cli.main(["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
                      "--max-steps", "1", "--rotation", "6d", "--quiet"]) == 0
