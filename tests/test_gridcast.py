@@ -2,17 +2,15 @@
 convention, determinism and input checks.
 
 Agreement with embree on ``grid_mesh`` of the same real ModelNet10 grid, same (object, pose), 320x240, 1 m
-object, views from the default sampler (uniform SO(3), 1.4-2.0 m); measured by
+object, views from the default sampler (uniform SO(3), 1.4-2.0 m), default march step 0.25 voxel; measured by
 ``benchmarks/bench_gridcast.py`` on the first 3 training grids of each of the 10 classes x 3 poses (90 images,
-2026-11-25): |depth difference| over pixels both hit: median 0.067 mm, 90th percentile 1.8 mm, 99th 11.5 mm;
-silhouette IoU per image: median 0.985, 10th percentile 0.930, minimum 0.649; pooled over the images 0.978.
-27 of the 90 images fall below 0.98, all of objects with thin slanted parts (a wire-frame chair, table and bed
-legs, a monitor stand): marching cubes draws the flat polygons of a near-critical saddle (two voxels touching
-along an edge, the field between them just above 0.5) wider than the trilinear field's level set, which pinches
-there. The target (IoU >= 0.98, median |depth difference| <= 3 mm) holds for the median image and the depth;
-the pooled IoU misses it by 0.002 and the thin-part objects by up to 0.33. The fast test takes four classes
-without thin slanted parts (bed, desk, monitor, sofa: one object, two poses) and asserts the target; the slow
-test asserts what the 90 images meet (median IoU and depth as the target, pooled IoU >= 0.97).
+2026-11-25): |depth difference| over pixels both hit: median 0.067 mm, 90th percentile 1.8 mm, 99th 10.9 mm;
+silhouette IoU pooled over the images 0.991, per image median 0.993, 10th percentile 0.960, minimum 0.909.
+14 of the 90 images fall below 0.98, objects with thin slanted parts (lowest: a wire-frame chair 0.909, a
+table 0.944): marching cubes draws the flat polygons of a near-critical saddle (two voxels touching along an
+edge, the field between them just above 0.5) wider than the trilinear field's level set, which pinches there.
+The target (IoU >= 0.98, median |depth difference| <= 3 mm) is asserted on the pooled and the median IoU: by the
+fast test on four classes (bed, desk, monitor, sofa: one object, two poses), by the slow one on the 90 images.
 """
 import numpy as np
 import pytest
@@ -68,7 +66,7 @@ def test_agrees_with_embree_on_grid_mesh_of_real_grids(vox30):
 def test_agrees_with_embree_on_every_class(vox30):
     ious, pooled, d = _agreement(_sample_grids(vox30, 3), 3)
     assert len(ious) == 90
-    assert pooled >= 0.97 and np.median(ious) >= 0.98, (pooled, np.sort(ious)[:5])
+    assert pooled >= 0.98 and np.median(ious) >= 0.98, (pooled, np.sort(ious)[:5])
     assert np.median(d) <= 0.003, np.median(d)
 
 

@@ -93,7 +93,7 @@ def _check_rotations(Rs: torch.Tensor) -> None:
 class GridCaster:
     """Batched depth renderer of a fixed list of occupancy grids for one camera, in torch.
 
-    ``GridCaster(grids, intrinsics, object_size=1.0, smooth=1.0, device="cpu", step=0.5, refine=8)``:
+    ``GridCaster(grids, intrinsics, object_size=1.0, smooth=1.0, device="cpu", step=0.25, refine=8)``:
     ``grids`` (N, R, R, R) occupancy (or a list of such grids), smoothed once here
     (:func:`hbeo.render.renderer.grid_field`; a non-cubic grid raises ValueError, an empty one
     DataError, a ValueError) and kept on ``device``; ``step``: the march's smallest step, voxels;
@@ -105,7 +105,7 @@ class GridCaster:
     znear = 0.01
 
     def __init__(self, grids, intrinsics: C.Intrinsics, object_size: float = 1.0, smooth: float = 1.0,
-                 device="cpu", step: float = 0.5, refine: int = 8):
+                 device="cpu", step: float = 0.25, refine: int = 8):
         if not isinstance(intrinsics, C.Intrinsics):
             raise TypeError(f"intrinsics must be hbeo.conventions.Intrinsics, got {type(intrinsics).__name__}")
         self.intrinsics, self.object_size = intrinsics, _check_size(object_size)
