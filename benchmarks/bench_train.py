@@ -15,6 +15,10 @@ first epoch, with its warm-up, is left out) and its peak resident memory: ``VmHW
 training process (for data-parallel runs the largest rank, and the sum over ranks) and, sampled,
 of the process with its loader workers ("+workers", summed over ranks).
 
+The ``torch grid renderer`` modes stream with render backend ``torch`` (:mod:`hbeo.render.gridcast`: every
+batch rendered at once in the training process) from the same objects' voxel grids (the run's grid sets, written
+as a ``modelnet10_vox30``-layout file): the procedural meshes themselves cannot be ray-marched.
+
 ``--scaling`` adds the memory part: peak RSS of ``memory``, ``shards`` and ``stream`` at ``--views``
 and at 10x ``--views`` (a rendered set ten times larger; ``stream`` renders ten times more views
 per epoch), ``--scaling-steps`` steps each.
@@ -34,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-#: name -> (data source, torch threads (None: torch's default), loader workers, processes)
+#: name -> (data source, torch threads (None: torch's default), loader workers, processes[, render backend])
 MODES = {
     "memory (before: the baseline)": ("memory", None, 0, 1),
     "memory, 1 thread": ("memory", 1, 0, 1),
@@ -45,6 +49,8 @@ MODES = {
     "DDP 2x1 thread, memory": ("memory", 1, 0, 2),
     "DDP 2x1 thread, shards": ("shards", 1, 0, 2),
     "DDP 2x1 thread, stream, 1 loader worker each": ("stream", 1, 1, 2),
+    "stream, torch grid renderer (batches)": ("stream", None, 0, 1, "torch"),
+    "stream, torch grid renderer, 1 thread": ("stream", 1, 0, 1, "torch"),
 }
 BASELINE = "memory (before: the baseline)"
 
@@ -64,6 +70,22 @@ def prepare(work: Path, objects: int, views: int) -> Path:
     run = _run_dir(work, objects, views)
     Run.open(_profile(objects, views), "procedural", run).renders("train")
     return run
+
+
+def grid_file(work: Path, run: Path, objects: int, views: int) -> Path:
+    """The bench run's own voxel grids (both splits) in the ``modelnet10_vox30.npz`` layout: the dataset of
+    the ``torch`` renderer modes, which renders grids (the same objects, as grids; the run's subspace fits)."""
+    from hbeo.data import datasets
+    from hbeo.data.gridset import run_gridsets
+    path = work / f"grids-{objects}x{views}.npz"
+    if not path.exists():
+        prof = _profile(objects, views)
+        sets = run_gridsets(run, datasets.get_dataset("procedural", profile=prof), prof, progress=False)
+        arrays = {"classes": np.array(sets["train"].classes)}
+        for split, gs in sets.items():
+            arrays.update({f"X_{split}": gs.grids, f"y_{split}": gs.labels, f"names_{split}": gs.ids})
+        np.savez(path, **arrays)
+    return path
 
 
 def vm_hwm_mib() -> float:
@@ -119,9 +141,15 @@ def child(spec: dict) -> None:
     name = f"bench_{spec['tag']}"
     t0 = time.perf_counter()
     prof = _profile(spec["objects"], spec["views"])
-    ds = datasets.get_dataset("procedural", profile=prof) if spec["data"] == "stream" else None
+    backend = spec.get("backend", "auto")
+    ds = None
+    if spec["data"] == "stream":
+        ds = datasets.get_dataset("procedural", profile=prof) if backend != "torch" else \
+            datasets.get_dataset("modelnet10-vox30", path=spec["grids"])
+    from hbeo.render.views import RenderSettings
     fit_model(run, prof, TrainOptions(epochs=spec["epochs"], max_steps=spec["steps"], data=spec["data"], name=name,
-                                      loader_workers=spec["workers"]), dataset=ds, progress=False)
+                                      loader_workers=spec["workers"], backend=backend), dataset=ds, progress=False,
+              settings=RenderSettings.from_profile(prof, backend=backend))
     wall = time.perf_counter() - t0
     import pandas as pd
     log = pd.read_csv(run.train_log(run.model_file(name))) if w.main else None
@@ -138,14 +166,16 @@ def run_mode(name: str, run: Path, objects: int, views: int, work: Path, epochs:
     """Train mode ``name`` in a fresh child process (or torchrun's processes); its row of the table."""
     import shutil
     from hbeo.rundir import RunDir
-    data, threads, workers, procs = MODES[name]
+    data, threads, workers, procs, *backend = MODES[name]
     tag = f"{list(MODES).index(name)}_{views}"
     report = work / f"report_{tag}"
     for f in work.glob(f"report_{tag}.*"):
         f.unlink()
     shutil.rmtree(RunDir(run).training(f"bench_{tag}.hbeo"), ignore_errors=True)
     spec = {"run": str(run), "objects": objects, "views": views, "epochs": epochs, "steps": steps, "data": data,
-            "workers": workers, "tag": tag, "report": str(report), "threads": threads or 0}
+            "workers": workers, "tag": tag, "report": str(report), "threads": threads or 0,
+            "backend": backend[0] if backend else "auto",
+            "grids": str(grid_file(work, run, objects, views)) if backend else None}
     env = dict(os.environ, HBEO_BENCH_CHILD=json.dumps(spec))
     if procs > 1:
         cmd = [str(Path(sys.executable).with_name("torchrun")), "--standalone", "--nproc_per_node", str(procs),

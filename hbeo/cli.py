@@ -57,8 +57,8 @@ def cmd_render(args) -> int:
 def cmd_train(args) -> int:
     from hbeo.model import distributed
     from hbeo.model.fit import TrainOptions, ViewOptions, parse_loss_weights
-    same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "seed", "name",
-            "max_steps", "checkpoint_every", "loader_workers")                # TrainOptions' names
+    same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
+            "name", "max_steps", "checkpoint_every", "loader_workers")                # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), **{k: getattr(args, k) for k in same})
     world = distributed.setup()                       # under torchrun: join the other processes
@@ -182,7 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="render on the running Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of a "
                         "local cluster; its workers must see --out at the same path and run the same hbeo")
-    p.add_argument("--backend", choices=("auto", "pyrender", "embree"), default="auto", help="renderer (auto)")
+    p.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"), default="auto",
+                   help="renderer (auto); torch: ray-march each object's grid (grid datasets only)")
     p.add_argument("--seed", type=int, default=0, help="seed of the viewpoints and noise (0)")
     p.add_argument("--subspace", help="subspace.npz for shape coefficients (default: OUT/subspace.npz if present)")
     p.add_argument("--objects-per-shard", type=int, help="objects per shard file (default: about 1024 images per shard)")
@@ -210,6 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "error through the basis (default: the profile's recipe, hbeo.config.RecipeConfig.fit_kwargs)")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
+    p.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"), default="auto",
+                   help="renderer of the training views (auto); torch: ray-march each object's grid (grid "
+                        "datasets only); with --data stream, whole batches on the training device")
     p.add_argument("--rotation", choices=("axis_angle", "6d", "bins"),
                    help="pose output: the paper's axis-angle, the continuous 6-D representation, or a distribution "
                         "over a grid of rotations (bins); default: the profile's recipe")

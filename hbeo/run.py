@@ -30,7 +30,7 @@ from hbeo.data.gridset import build_gridset, run_gridsets
 from hbeo.errors import DataError, HBEOError
 from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
-from hbeo.render.views import RenderSettings
+from hbeo.render.views import RenderSettings, check_grid_records
 from hbeo.rundir import RunDir, failure_summary
 from hbeo.storage import atomic_text
 from hbeo.subspace.basis import ObjectSubspace
@@ -261,7 +261,10 @@ class Run:
         from hbeo.model.loop import CHECKPOINT, load_checkpoint
         opts = options or TrainOptions()
         prof = self.profile
-        settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler)
+        settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
+                                               backend=opts.backend)
+        if settings.backend == "torch":                   # grids only: refuse a mesh dataset before any work
+            check_grid_records(self.records("train"))
         main = distributed.world().main
         if main:                                          # rank 0 prepares the shared files, the others wait
             if (opts.data or prof.data.train_data) == "stream":

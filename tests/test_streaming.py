@@ -1,4 +1,7 @@
-"""The three sources of training images (memory, shards, stream) feed the loop the same items."""
+"""The three sources of training images (memory, shards, stream) feed the loop the same items; the stream
+rendered in batches by the torch grid renderer gives the images it gives one by one and resumes exactly."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -115,3 +118,111 @@ def test_stream_draws_fresh_poses_each_epoch_and_a_fixed_validation_set(sources)
     v1 = torch.cat([b["depth"] for b in data_loader(st.val, cfg)])
     v2 = torch.cat([b["depth"] for b in data_loader(st.val, cfg)])
     assert torch.equal(v1, v2)
+
+
+# --------------------------------------------------------------------------- stream on the torch renderer
+
+def _tiny_vox30(path):
+    """A grid file in the modelnet10_vox30 layout: chairs (tall boxes with a back) and tables (a top on
+    legs), 6 training and 3 test objects each, sizes varying with the index."""
+    def chair(i):
+        g = np.zeros((30, 30, 30), bool)
+        g[8:22, 8:22, 3:12 + i % 3] = True
+        g[8:11 + i % 2, 8:22, 12:27] = True
+        return g
+
+    def table(i):
+        g = np.zeros((30, 30, 30), bool)
+        g[3:27, 6 + i % 3:24, 16:19] = True
+        for x in (4, 24):
+            for y in (7 + i % 3, 22):
+                g[x:x + 2, y:y + 2, 3:16] = True
+        return g
+    arrays = {"classes": np.array(["chair", "table"])}
+    for split, n in (("train", 6), ("test", 3)):
+        X = np.stack([f(i + 10 * (split == "test")) for f in (chair, table) for i in range(n)])
+        arrays[f"X_{split}"] = X
+        arrays[f"y_{split}"] = np.repeat([0, 1], n)
+        arrays[f"names_{split}"] = np.array([f"{c}_{split}_{i}" for c in ("chair", "table") for i in range(n)])
+    np.savez(path, **arrays)
+    return path
+
+
+@pytest.fixture(scope="module")
+def torch_stream(tmp_path_factory):
+    """A ci run on a tiny grid dataset with its subspace, and a function giving its torch-stream data."""
+    from hbeo.run import Run
+    tmp = tmp_path_factory.mktemp("torch_stream")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HBEO_CACHE", str(tmp / "cache"))
+        run = Run.open("ci", "modelnet10-vox30", tmp / "run", path=_tiny_vox30(tmp / "tiny.npz"))
+        run.subspace(progress=False)
+    settings = RenderSettings.from_profile(run.profile, backend="torch")
+
+    def data(roll=False, **kw):
+        return training_data(run.dir, ViewOptions(), augment_roll=roll, source="stream", dataset=run.dataset,
+                             profile=run.profile, settings=replace(settings, **kw), progress=False)
+    return run, data
+
+
+def test_torch_stream_batches_are_the_images_rendered_one_by_one(torch_stream):
+    _, data = torch_stream
+    d = data(noise=True)
+    base = d.train.base
+    assert base.renders_batches and not data(backend="embree").train.base.renders_batches
+    idx = [0, 5, 17, len(d.train) - 1]
+    batch = base.render_batch(idx)
+    assert batch["depth"].shape == (4, 1, 60, 80) and (batch["depth"] > 0).any(dim=(1, 2, 3)).all()
+    for k, i in enumerate(idx):
+        one = base[i]                          # ObjectViews, the torch backend on one object: the same image
+        torch.testing.assert_close(batch["depth"][k], one["depth"], atol=1e-3, rtol=0)
+        assert torch.equal(batch["rotation"][k], one["rotation"]) and torch.equal(batch["coeffs"][k], one["coeffs"])
+    # a model batch: the memory source's keys, shapes and dtypes
+    items = d.train.__getitems__(idx)
+    assert _spec(items[0]) == _spec(d.train[idx[0]])
+    assert set(items[0]) == {"depth", "label", "rotation", "axis_angle", "coeffs", "object_index"}
+
+
+def test_torch_stream_roll_turns_pose_and_image_together(torch_stream):
+    _, data = torch_stream
+    base = data().train.base
+    torch.manual_seed(0)
+    rolled = base.render_batch([3, 4], roll=True)
+    plain = base.render_batch([3, 4])
+    from hbeo.rotations import geodesic_deg
+    R0, R1 = plain["rotation"].double().numpy(), rolled["rotation"].double().numpy()
+    rel = R1 @ R0.transpose(0, 2, 1)               # Rz(a): a turn about the optical axis only
+    np.testing.assert_allclose(rel[:, 2], [[0, 0, 1]] * 2, atol=1e-6)
+    assert (geodesic_deg(R0, R1) > 1).all()
+    torch.manual_seed(0)
+    assert torch.equal(base.render_batch([3, 4], roll=True)["depth"], rolled["depth"])
+
+
+def test_torch_stream_refuses_a_mesh_dataset():
+    from hbeo.render.torch_datasets import FreshPoses
+    prof = config.get_profile("ci")
+    ds = datasets.get_dataset("procedural", profile=prof)
+    with pytest.raises(ValueError, match="mesh only.*modelnet10-vox30"):
+        FreshPoses(ds, ds.records("train")[:4], "train", RenderSettings(backend="torch"))
+
+
+def test_torch_stream_training_resumes_exactly(torch_stream, tmp_path):
+    """Killed after step 5 (2 epochs of 3 steps, a checkpoint every 2), resumed: the same weights."""
+    from hbeo.model.distributed import weights_sha256
+    from hbeo.model.fit import HBEONetTask
+    from hbeo.model.loop import load_checkpoint, train
+    from hbeo.model.network import NetConfig
+    from hbeo.rundir import CHECKPOINT
+    run, data = torch_stream
+
+    def fit(out, **kw):
+        d = data(roll=True, views_per_object=2)
+        task = HBEONetTask(NetConfig(image_size=(80, 60), n_classes=2, n_coeffs=len(d.coeff_mean),
+                                     conv_channels=(4, 4, 4, 4), fc=(8, 8, 8)))
+        cfg = TrainConfig(epochs=2, batch_size=8, seed=0, progress=False, device="cpu", checkpoint_every=2,
+                          data={"source": "stream", "backend": "torch"})
+        return train(task, d.train, d.val, out, cfg, **kw)
+    whole = weights_sha256(fit(tmp_path / "whole"))
+    fit(tmp_path / "cut", stop_after_step=5)
+    assert load_checkpoint(tmp_path / "cut" / CHECKPOINT)["step"] == 4
+    assert weights_sha256(fit(tmp_path / "cut")) == whole

@@ -38,7 +38,7 @@ from hbeo.model.preprocess import to_model_view
 from hbeo.model import distributed
 from hbeo.model.loop import TrainConfig, ValidationMeans, train
 from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
-                                  split_objects)
+                                  split_objects, unstack)
 from hbeo.render.renderset import Manifest, subspace_info
 from hbeo.render.views import RenderSettings
 from hbeo.rotations import geodesic_deg, matrix_to_axis_angle
@@ -184,10 +184,27 @@ def model_item(raw: dict, K, opts: ViewOptions, coeff_mean, coeff_std) -> dict:
             "coeffs": torch.from_numpy(coeffs), "object_index": int(raw["object_index"])}
 
 
+def model_batch(raw: dict, K, opts: ViewOptions, coeff_mean, coeff_std) -> dict:
+    """:func:`model_item` for a whole batch (the stacked items of :meth:`FreshPoses.render_batch`, depth
+    on the training device), the same arithmetic with the depth left where it is; views that must be
+    re-centred or zoomed go through :func:`model_item` one by one (on the CPU)."""
+    if opts.recenter or opts.ref_distance:
+        items = [model_item({k: v[i].cpu() if k == "depth" else v[i] for k, v in raw.items()}, K, opts, coeff_mean,
+                            coeff_std) for i in range(len(raw["label"]))]
+        return {k: torch.stack([torch.as_tensor(it[k]) for it in items]) for k in items[0]}
+    R = raw["rotation"].numpy().astype(np.float32)
+    coeffs = ((raw["coeffs"].numpy().astype(np.float32) - coeff_mean) / coeff_std).astype(np.float32)
+    return {"depth": raw["depth"].half().float(), "label": raw["label"], "rotation": torch.from_numpy(R),
+            "axis_angle": torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32)),
+            "coeffs": torch.from_numpy(coeffs), "object_index": raw["object_index"]}
+
+
 class ModelView(Dataset):
     """A map-style view dataset (e.g. a :class:`DepthShards` subset) read lazily and brought into
     the model's input view item by item (:func:`model_item`), rolled if ``roll``; ``order(seed,
-    epoch)`` gives each epoch's sampler (:func:`hbeo.model.loop.data_loader`)."""
+    epoch)`` gives each epoch's sampler (:func:`hbeo.model.loop.data_loader`). A base that renders
+    whole batches (:class:`FreshPoses` with render backend ``torch``) is read a batch at a time
+    (:meth:`__getitems__`, :func:`model_batch`), each roll then rendered, not resampled."""
 
     def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False, order=None):
         self.base, self.K, self.opts, self.roll, self.order = base, K, opts, roll, order
@@ -197,8 +214,16 @@ class ModelView(Dataset):
         return len(self.base)
 
     def __getitem__(self, i):
+        if getattr(self.base, "renders_batches", False):
+            return self.__getitems__([i])[0]
         item = model_item(self.base[i], self.K, self.opts, self.coeff_mean, self.coeff_std)
         return roll_item(item, self.K) if self.roll else item
+
+    def __getitems__(self, indices) -> list[dict]:
+        if not getattr(self.base, "renders_batches", False):
+            return [self[i] for i in indices]
+        raw = self.base.render_batch(indices, roll=self.roll)
+        return unstack(model_batch(raw, self.K, self.opts, self.coeff_mean, self.coeff_std))
 
     def set_epoch(self, epoch: int) -> None:
         if hasattr(self.base, "set_epoch"):
@@ -278,7 +303,9 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
                 image renderable alone) from ``dataset``'s (a loaded Dataset) training records of
                 ``profile`` (a Profile) with render ``settings``; validation: ``profile.stream_val_views`` views of
                 each validation object, rendered once; coefficients standardized with the statistics of
-                the run's training grids. Needs the run's subspace, renders nothing first.
+                the run's training grids. Needs the run's subspace, renders nothing first. With render
+                ``settings.backend`` "torch" (grid datasets only) each training batch is rendered at
+                once on the training device from the objects' grids kept there (:meth:`FreshPoses.render_batch`).
     Memory use of ``shards`` and ``stream`` does not grow with the number of images."""
     run = RunDir.of(run)
     if source == "memory":
@@ -331,7 +358,8 @@ class TrainOptions:
     :meth:`hbeo.config.RecipeConfig.fit_kwargs`) and the data source ``data`` (:data:`DATA_SOURCES`).
 
     normalization: depth input ``none`` (metres, the paper) or ``center``; view: :class:`ViewOptions`;
-    sampler / views: the training views' sampler and views per object (render settings); loss: the
+    sampler / views / backend: the training views' sampler, views per object and render backend (render
+    settings; ``torch`` with ``data="stream"``: batches rendered on the training device); loss: the
     weights gamma_c, gamma_o, gamma_p of the paper's loss; val_fraction: objects held out for validation;
     name: the model file in the run folder; max_steps: stop after that many optimizer steps (the
     schedule ends there); checkpoint_every: also checkpoint every that many steps; loader_workers:
@@ -346,6 +374,7 @@ class TrainOptions:
     view: ViewOptions = field(default_factory=lambda: ViewOptions())
     sampler: str = "so3"
     views: int | None = None
+    backend: str = "auto"
     loss: LossWeights = field(default_factory=LossWeights)
     val_fraction: float = 0.1
     seed: int = 0
@@ -407,7 +436,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         if rendered_with != subspace_info(sub)["basis_sha256"]:
             raise DataError(run.renders("train"), f"rendered with another subspace than {run.subspace}; render it "
                                                   f"again (notebook 03)")
-    settings = settings or RenderSettings.from_profile(prof)
+    settings = settings or RenderSettings.from_profile(prof, backend=opts.backend)
     data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
                     conv_channels=tuple(prof.network.conv_channels), fc=tuple(prof.network.fc),
@@ -416,6 +445,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
            "val_fraction": opts.val_fraction}
     if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
         how["source"] = source
+    if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
+        how["backend"] = "torch"
     tc = TrainConfig(epochs=opts.epochs or prof.recipe.epochs, batch_size=prof.recipe.batch_size, lr=prof.recipe.lr,
                      seed=opts.seed, progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
                      max_steps=opts.max_steps, data=how, checkpoint_every=opts.checkpoint_every,

@@ -1,7 +1,8 @@
 """Depth images (Sec. IV, training data): cameras, viewpoints, renderers, sensor noise, render sets.
 
 Owns sampling viewpoints (:mod:`~hbeo.render.poses`), rendering meshes and grids to depth
-(:mod:`~hbeo.render.renderer`), sensor noise (:mod:`~hbeo.render.noise`), the settings and labelled
+(:mod:`~hbeo.render.renderer`), ray-marching grids to depth in batches in torch
+(:mod:`~hbeo.render.gridcast`), sensor noise (:mod:`~hbeo.render.noise`), the settings and labelled
 views of one object (:mod:`~hbeo.render.views`), the rendered training sets on disk
 (:mod:`~hbeo.render.renderset`) and as torch datasets (:mod:`~hbeo.render.torch_datasets`).
 Camera intrinsics and frames are defined once in :mod:`hbeo.conventions`.

@@ -1,6 +1,6 @@
 """Depth images of meshes: mesh preparation and two rendering backends.
 
-Owns :class:`Renderer`, :func:`prepare_mesh` / :func:`grid_mesh` / :func:`record_mesh` and the
+Owns :class:`Renderer`, :func:`prepare_mesh` / :func:`grid_field` / :func:`grid_mesh` / :func:`record_mesh` and the
 choice of backend and OpenGL platform; the sensor-noise model is :mod:`hbeo.render.noise`.
 Imports the foundation and :mod:`hbeo.data.meshio` only.
 
@@ -87,6 +87,21 @@ def _constrained_smooth(occ: np.ndarray, sigma: float, iterations: int = 12, mar
     return f
 
 
+def grid_field(grid: np.ndarray, smooth: float = 1.0) -> np.ndarray:
+    """The occupancy field whose 0.5 level set is a grid's surface (:func:`grid_mesh` triangulates it,
+    :mod:`hbeo.render.gridcast` ray-marches it): float32 (R+2, R+2, R+2), the grid (R, R, R) padded by
+    one empty voxel on each side and smoothed by :func:`_constrained_smooth` with ``sigma = smooth``
+    voxels. Padded index p lies at grid coordinate ``u = p - 0.5`` (:mod:`hbeo.conventions`).
+    ValueError for a grid that is not cubic, DataError (a ValueError) for an empty one."""
+    g = np.asarray(grid)
+    if g.ndim != 3 or len(set(g.shape)) != 1 or g.shape[0] < 2:
+        raise ValueError(f"grid must be a cubic (R, R, R) array, got shape {g.shape}")
+    occ = g.astype(bool)
+    if not occ.any():
+        raise DataError(None, "empty occupancy grid (no occupied voxel); nothing to mesh")
+    return _constrained_smooth(np.pad(occ, 1), float(smooth))
+
+
 def grid_mesh(grid: np.ndarray, object_size: float = 1.0, smooth: float = 1.0) -> trimesh.Trimesh:
     """Surface mesh (metres, rendering frame of :func:`prepare_mesh`) of an occupancy grid
     (R, R, R), normally 30^3 in the :mod:`hbeo.conventions` layout.
@@ -100,14 +115,8 @@ def grid_mesh(grid: np.ndarray, object_size: float = 1.0, smooth: float = 1.0) -
     """
     from skimage import measure
     size = _check_size(object_size)
-    g = np.asarray(grid)
-    if g.ndim != 3 or len(set(g.shape)) != 1 or g.shape[0] < 2:
-        raise ValueError(f"grid must be a cubic (R, R, R) array, got shape {g.shape}")
-    occ = g.astype(bool)
-    if not occ.any():
-        raise DataError(None, "empty occupancy grid (no occupied voxel); nothing to mesh")
-    res = g.shape[0]
-    f = _constrained_smooth(np.pad(occ, 1), float(smooth))
+    f = grid_field(grid, smooth)
+    res = f.shape[0] - 2
     verts, faces, _, _ = measure.marching_cubes(f, level=0.5, allow_degenerate=False)
     u = verts.astype(np.float64) - 1.0 + 0.5             # padded index -> grid coordinate
     span = res * C.OBJECT_VOXELS / C.RESOLUTION          # voxels spanned by object_size

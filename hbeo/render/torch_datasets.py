@@ -12,7 +12,7 @@ Items (dicts of tensors, what :mod:`hbeo.model.loop` takes)
     ``translation`` (3,) float32 metres, ``object_index`` int64 and, if the set has them,
     ``coeffs`` (k,) float32.
 
-Imports the foundation, torch and :mod:`hbeo.render` (views, renderset).
+Imports the foundation, torch and :mod:`hbeo.render` (views, renderset, gridcast).
 """
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ from torch.utils.data import Dataset as TorchDataset, IterableDataset, Sampler, 
 from hbeo.data.datasets import split_objects
 from hbeo.errors import DataError
 from hbeo.render.renderset import SHARD_KEYS, Manifest
-from hbeo.render.views import SPLIT_CODES, ObjectViews, RenderSettings, _split_code
+from hbeo.render.views import SPLIT_CODES, ObjectViews, RenderSettings, _split_code, check_grid_records, object_rng
+from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.storage import unpack_bits
 
 
@@ -248,7 +249,9 @@ class FreshPoses(TorchDataset):
     many images as the rendered set, every batch comes from many objects, no pose repeats between
     epochs, any subset of an epoch can be rendered alone (a data-parallel rank's share, a resumed
     epoch's rest, a DataLoader worker's items) and memory holds one view at a time. Each process
-    opens its own renderer on first use. Yields the dicts :class:`DepthShards` gives.
+    opens its own renderer on first use. Yields the dicts :class:`DepthShards` gives. With render
+    backend ``torch`` a DataLoader's batch is rendered at once on the training device
+    (:meth:`render_batch`, :meth:`__getitems__`) from every object's grid held there.
     """
 
     def __init__(self, dataset, records, split: str, settings: RenderSettings, subspace=None,
@@ -260,6 +263,10 @@ class FreshPoses(TorchDataset):
                                    shuffle=True)
         self.epoch = 0
         self._ctx = None
+        self._caster = None
+        self.device = None          #: backend "torch": the device batches are rendered on (None: auto)
+        if settings.backend == "torch":
+            check_grid_records(self.base.records)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -294,5 +301,88 @@ class FreshPoses(TorchDataset):
 
     def __getstate__(self):  # DataLoader workers open renderers of their own
         state = dict(self.__dict__)
-        state["_ctx"] = None
+        state["_ctx"] = state["_caster"] = None
         return state
+
+    # -- backend "torch": whole batches on the training device
+    @property
+    def renders_batches(self) -> bool:
+        """Whether :meth:`render_batch` renders a batch at once (render backend ``torch``)."""
+        return self.base.settings.backend == "torch"
+
+    def _device(self) -> torch.device:
+        if get_worker_info() is not None:           # a DataLoader worker process renders on its CPU
+            return torch.device("cpu")
+        if self.device is not None:
+            return torch.device(self.device)
+        if torch.cuda.is_available():               # where hbeo.model.loop trains: the current CUDA device
+            return torch.device("cuda", torch.cuda.current_device())
+        return torch.device("cpu")
+
+    def caster(self):
+        """The :class:`hbeo.render.gridcast.GridCaster` of all objects' grids on this process's device
+        (:attr:`device`; None: CUDA's current device when there is one, else the CPU), built once."""
+        dev = self._device()
+        if self._caster is None or self._caster.device != dev:
+            from hbeo.data.gridset import record_grid
+            from hbeo.render.gridcast import GridCaster
+            b = self.base
+            self._caster = GridCaster([record_grid(r) for r in b.records], b.settings.intrinsics,
+                                      b.settings.object_size, device=dev)
+        return self._caster
+
+    def render_batch(self, indices, roll: bool = False) -> dict:
+        """Images ``indices`` of this epoch rendered together (render backend ``torch``): the items of
+        :meth:`__getitem__` stacked, ``depth`` (B, 1, H, W) on the caster's device (:meth:`caster`), the
+        rest on the CPU; the same images as :meth:`__getitem__` gives one by one. ``roll``: each camera
+        first turns about its optical axis by a uniform random angle from torch's global generator
+        (``rotation`` and ``translation`` turn with it): an exact rolled view, rendered, not resampled."""
+        b, n = self.base, len(self.base)
+        s = b.settings
+        if not self.renders_batches:
+            raise ValueError(f"render_batch needs render backend 'torch', not {s.backend!r}")
+        idx = [int(i) for i in indices]
+        if bad := [i for i in idx if not 0 <= i < len(self)]:
+            raise IndexError(f"image {bad[0]} out of range for {len(self)} views per epoch")
+        if self._ctx is None:
+            self._ctx = ObjectViews(s, b.subspace)
+        pos, rngs, Rs, ts = [], [], [], []
+        for i in idx:
+            j, p = divmod(i, n)
+            rng = object_rng(s.seed, b.split, p, self.epoch * self.passes + j)
+            R, t = s.view_sampler.sample(1, rng)
+            pos.append(p), rngs.append(rng), Rs.append(R[0]), ts.append(t[0])
+        R, t = np.stack(Rs), np.stack(ts)
+        if roll:
+            Rz = z_angle_to_matrix(torch.rand(len(idx), dtype=torch.float64).numpy() * 2 * np.pi)
+            R, t = Rz @ R, (Rz @ t[:, :, None])[:, :, 0]
+        caster = self.caster()
+        depth = caster.render(torch.as_tensor(pos), R, t)
+        if s.noise:                                  # the numpy noise model, each view with its own stream
+            arr = depth.cpu().numpy()
+            depth = torch.from_numpy(np.stack([self._ctx.noise.apply(d, s.intrinsics, g) for d, g in zip(arr, rngs)]))
+            depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).to(caster.device)
+        depth = depth.half().float()                 # as a rendered set stores it (float16)
+        depth[~(depth > 0)] = 0
+        out = {"depth": depth[:, None], "label": torch.tensor([b.labels[p] for p in pos], dtype=torch.long),
+               "rotation": torch.from_numpy(R.astype(np.float32)),
+               "axis_angle": torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32)),
+               "translation": torch.from_numpy(t.astype(np.float32)),
+               "object_index": torch.tensor(pos, dtype=torch.long)}
+        if b.subspace is not None:
+            out["coeffs"] = torch.from_numpy(np.stack([self._ctx.coeffs(b.records[p]) for p in pos]))
+        return out
+
+    def __getitems__(self, indices) -> list[dict]:
+        """The items ``indices`` (what a DataLoader fetches for a batch): rendered together with the
+        ``torch`` backend (:meth:`render_batch`), one by one otherwise."""
+        if not self.renders_batches:
+            return [self[i] for i in indices]
+        return unstack(self.render_batch(indices))
+
+
+def unstack(batch: dict) -> list[dict]:
+    """A batch (dict of tensors with a leading batch dimension) -> its items (views, no copies), which a
+    DataLoader's collation stacks back."""
+    n = len(next(iter(batch.values())))
+    return [{k: v[i] for k, v in batch.items()} for i in range(n)]

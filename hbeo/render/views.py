@@ -25,7 +25,7 @@ Query views (the paired test protocol)
     and id: the same (object, view) is the same image whatever list the object sits in, however
     many views are asked for, and for every method.
 
-Imports the foundation, :mod:`hbeo.data.gridset` and :mod:`hbeo.render` (poses, renderer, noise).
+Imports the foundation, :mod:`hbeo.data.gridset` and :mod:`hbeo.render` (poses, renderer, gridcast, noise).
 """
 from __future__ import annotations
 
@@ -41,7 +41,9 @@ from hbeo.render.noise import SensorNoise
 from hbeo.render.poses import SAMPLERS, ViewSampler
 from hbeo.rotations import matrix_to_axis_angle
 
-BACKENDS = ("auto", "pyrender", "embree")
+#: render backends: the mesh renderers of :mod:`hbeo.render.renderer` and ``torch``, the grid ray
+#: marcher of :mod:`hbeo.render.gridcast` (objects with a grid only)
+BACKENDS = ("auto", "pyrender", "embree", "torch")
 #: random-stream codes: a rendered split, and "val" for the query views of validation objects (from "train")
 SPLIT_CODES = {"train": 0, "test": 1, "val": 2}
 
@@ -57,7 +59,8 @@ class RenderSettings:
     ``"upright"``. object_size: longest side of every object, metres. distance: range of the
     object centre's depth, metres. shift: largest offset of the object centre from the
     optical axis, as a fraction of its depth. elevation_deg: camera elevation range of the
-    upright sampler. backend: ``"auto"``, ``"pyrender"`` or ``"embree"``. noise: apply
+    upright sampler. backend: ``"auto"``, ``"pyrender"``, ``"embree"`` (meshes) or ``"torch"`` (the
+    surface of each object's grid, ray-marched in torch: :mod:`hbeo.render.gridcast`). noise: apply
     :class:`hbeo.render.noise.SensorNoise`. seed: the set's seed (a non-negative integer).
     """
 
@@ -168,6 +171,14 @@ def query_rng(seed: int, split: str, record, view: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), _split_code(split), object_key(record), int(view)])
 
 
+def check_grid_records(records) -> None:
+    """ValueError unless every record has a grid: the ``torch`` backend renders grids, not meshes."""
+    if bad := [r for r in records if not r.has_grid]:
+        raise ValueError(f"render backend 'torch' ray-marches occupancy grids, and {len(bad)} object(s) have a "
+                         f"mesh only (e.g. {_record_name(bad[0])}); use a grid dataset (modelnet10-vox30) or "
+                         f"backend embree / pyrender")
+
+
 def _split_code(split: str) -> int:
     try:
         return SPLIT_CODES[split]
@@ -201,6 +212,7 @@ class ObjectViews:
         self.intrinsics = settings.intrinsics
         self.noise = SensorNoise() if settings.noise else None
         self.renderer = None
+        self._caster = None                     # backend "torch": (object key, GridCaster) of the last object
         self._coeffs: dict[tuple, np.ndarray] = {}
 
     @property
@@ -208,7 +220,7 @@ class ObjectViews:
         return self.renderer.backend if self.renderer is not None else self.settings.backend
 
     def open(self):
-        if self.renderer is None:
+        if self.renderer is None and self.settings.backend != "torch":
             self.renderer = self.render.Renderer(self.intrinsics, backend=self.settings.backend)
         return self
 
@@ -245,17 +257,39 @@ class ObjectViews:
     def _render(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list) -> dict:
         s = self.settings
         try:
-            mesh = self.render.record_mesh(record, object_size=s.object_size)
+            depth = self._grid_depth(record, R, t) if s.backend == "torch" else self._mesh_depth(record, R, t)
+        except DataError:
+            raise
+        except Exception as err:
+            raise DataError(record.path or _record_name(record),
+                            f"rendering object {_record_name(record)} failed ({type(err).__name__}: {err})") from err
+        return self.finish(record, position, label, R, t, rngs, depth)
+
+    def _mesh_depth(self, record, R, t) -> np.ndarray:
+        try:
+            mesh = self.render.record_mesh(record, object_size=self.settings.object_size)
         except Exception as err:
             raise DataError(record.path or _record_name(record),
                             f"cannot render object {_record_name(record)}: no usable mesh "
                             f"({type(err).__name__}: {err})") from err
         self.open()
-        try:
-            depth = np.asarray(self.renderer.render_many(mesh, R, t), np.float32)
-        except Exception as err:
-            raise DataError(record.path or _record_name(record),
-                            f"rendering object {_record_name(record)} failed ({type(err).__name__}: {err})") from err
+        return np.asarray(self.renderer.render_many(mesh, R, t), np.float32)
+
+    def _grid_depth(self, record, R, t) -> np.ndarray:
+        """The ``torch`` backend, one object on the CPU (:class:`hbeo.render.gridcast.GridCaster`)."""
+        from hbeo.render.gridcast import GridCaster
+        check_grid_records([record])
+        key = (record.split, record.cls, record.id)
+        if self._caster is None or self._caster[0] != key:
+            self._caster = (key, GridCaster([record.grid()], self.intrinsics, self.settings.object_size))
+        return self._caster[1].render(np.zeros(len(R), np.int64), R, t).numpy()
+
+    def finish(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list,
+               depth: np.ndarray) -> dict:
+        """The arrays of rendered views ``depth`` (n, H, W) of one object at poses R, t: sensor noise
+        (if the settings ask for it) from ``rngs`` (one per view, or one stream for all), float16 depth."""
+        s = self.settings
+        depth = np.asarray(depth, np.float32)
         n, (w, h) = len(R), s.image_size
         if depth.shape != (n, h, w):
             raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(n, h, w)}")

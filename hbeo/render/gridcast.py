@@ -1,0 +1,290 @@
+"""Depth images of occupancy grids by ray marching, batched in torch: :class:`GridCaster`.
+
+Owns the ``torch`` render backend: B depth images of B (object, pose) pairs at once, on the device
+the caller chooses (CPU or CUDA), with no host copy inside the march. It renders the surface that
+:func:`hbeo.render.renderer.grid_mesh` triangulates, without the triangles: the 0.5 level set of the
+same field (:func:`hbeo.render.renderer.grid_field`: the grid padded by one voxel and
+constrained-smoothed), interpolated trilinearly. Marching cubes on that field is not exactly its
+trilinear level set; measured agreement with the embree renderer on ``grid_mesh`` of real ModelNet10
+grids is in ``benchmarks/README.md`` ("Grid ray marching") and ``tests/test_gridcast.py``.
+
+Units and frames (:mod:`hbeo.conventions`, as :mod:`hbeo.render.renderer`)
+    Grid coordinate u (voxel centre i + 0.5) maps to ``x = (u - R/2) / (0.8 R) * object_size`` metres;
+    padded field index ``p = u + 0.5``. A pose (R, t) puts object point x at ``R @ x + t`` in the
+    camera frame (OpenCV axes). Depth (B, H, W) float32: the camera-frame z of the first surface point
+    on the ray through each pixel *centre*, metres; 0 where the ray misses.
+
+Method, per ray ``p(z) = a + z b`` (padded index coordinates, linear in the camera depth z)
+    1. clip to the object's box (the cells that can hold field >= 0.5: the lattice points where the
+       field is >= 0.5, grown by one voxel) and to :attr:`GridCaster.znear`;
+    2. march: at each sample take the trilinear field; stop at the first sample >= 0.5; otherwise step
+       by the largest of ``step`` voxels, a safe distance (a lower bound on the distance to the nearest
+       point where the field can reach 0.5: the distance between the centres of the sample's cell and
+       the nearest cell with a corner >= 0.5, less sqrt(3) voxels) and (0.5 - field) / slope (slope:
+       a bound on the field's gradient), so empty space costs few samples;
+    3. refine the bracketing pair of samples by ``refine`` bisections, then one secant step.
+    Rays are compacted as they finish, so the cost follows the samples actually taken. Like any fixed
+    step march it can miss a feature thinner than ``step`` along the ray that ``grid_mesh`` shows.
+
+Memory: per object the field (float32) and the safe distance (uint8) over its box only, about
+50 kB for a ModelNet10 object at R = 30 (a few hundred MB for all of ModelNet10's training grids).
+
+Imports torch, numpy, scipy, :mod:`hbeo.conventions` and :mod:`hbeo.render.renderer`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from hbeo import conventions as C
+from hbeo.render.renderer import _check_size, grid_field
+
+#: the field's level that is the surface (as grid_mesh's marching cubes)
+LEVEL = 0.5
+_SAFE_MARGIN = math.sqrt(3.0)           # voxels: see the module docstring, step 2
+SAFE_UNITS = 4                          #: safe distances are stored in quarter voxels (uint8)
+
+
+def object_volume(field: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """One object's march data from its field (P, P, P) (:func:`hbeo.render.renderer.grid_field`):
+    ``(lo (3,) int64, field float32, safe uint8, slope)``. ``field`` is the crop over the padded lattice
+    points ``lo .. hi`` that bound every cell where the field can reach 0.5, plus one layer of zeros
+    past ``hi`` on each axis (so a cell's far corners always exist); ``safe[i, j, k]``, of the cell with
+    corner (i, j, k), is a lower bound on the distance from any point of the cell to the nearest point
+    where the field can reach 0.5, in 1 / :data:`SAFE_UNITS` voxels, rounded down; ``slope`` bounds
+    the field's gradient (per voxel)."""
+    from scipy import ndimage
+    f = np.asarray(field, np.float32)
+    active = f >= LEVEL
+    if not active.any():
+        raise ValueError("the field never reaches 0.5: an empty grid has no surface to render")
+    idx = np.nonzero(active)
+    lo = np.maximum(np.array([i.min() for i in idx]) - 1, 0)
+    hi = np.minimum(np.array([i.max() for i in idx]) + 1, np.array(f.shape) - 1)
+    crop = f[tuple(slice(a, b + 1) for a, b in zip(lo, hi))]
+    # cells with a corner >= 0.5 hold every point where the field reaches 0.5; the distance between
+    # two cells' centres, less sqrt(3), bounds the distance between their points
+    act = crop >= LEVEL
+    cells = ndimage.maximum_filter(act, size=2, origin=-1, mode="constant")[:-1, :-1, :-1]
+    dist = ndimage.distance_transform_edt(~cells)
+    safe = np.zeros(np.array(crop.shape) + 1, np.uint8)
+    safe[:-2, :-2, :-2] = np.floor(np.clip(dist - _SAFE_MARGIN, 0, 63) * SAFE_UNITS)
+    out = np.zeros(np.array(crop.shape) + 1, np.float32)
+    out[:-1, :-1, :-1] = crop
+    slope = math.sqrt(sum(float(np.abs(np.diff(crop, axis=ax)).max(initial=0.0)) ** 2 for ax in range(3)))
+    return lo.astype(np.int64), out, safe, max(slope, 1e-3)
+
+
+def _check_rotations(Rs: torch.Tensor) -> None:
+    """ValueError unless every R (B, 3, 3) is a rotation (orthonormal, det +1, within 1e-4), as
+    :class:`hbeo.render.renderer.Renderer` checks its poses."""
+    R64 = Rs.double()
+    err = (R64.transpose(1, 2) @ R64 - torch.eye(3, dtype=R64.dtype, device=R64.device)).abs().amax(dim=(1, 2))
+    det = torch.linalg.det(R64)
+    bad = ~((err <= 1e-4) & ((det - 1).abs() <= 1e-4))       # NaN counts as bad
+    if bool(bad.any()):
+        i = int(torch.nonzero(bad)[0, 0])
+        raise ValueError(f"R[{i}] is not a rotation matrix (|R^T R - I| = {float(err[i]):.2g}, det = "
+                         f"{float(det[i]):.6g}; need orthonormal with det +1 within 1e-4)")
+
+
+class GridCaster:
+    """Batched depth renderer of a fixed list of occupancy grids for one camera, in torch.
+
+    ``GridCaster(grids, intrinsics, object_size=1.0, smooth=1.0, device="cpu", step=0.25, refine=8)``:
+    ``grids`` (N, R, R, R) occupancy (or a list of such grids), smoothed once here
+    (:func:`hbeo.render.renderer.grid_field`; a non-cubic grid raises ValueError, an empty one
+    DataError, a ValueError) and kept on ``device``; ``step``: the march's smallest step, voxels;
+    ``refine``: bisections of the bracketing samples. :meth:`render` takes object indices and poses.
+    Deterministic: the same inputs give the same image on the same device.
+    """
+
+    #: objects must lie entirely beyond this depth (metres), as for :class:`hbeo.render.renderer.Renderer`
+    znear = 0.01
+
+    def __init__(self, grids, intrinsics: C.Intrinsics, object_size: float = 1.0, smooth: float = 1.0,
+                 device="cpu", step: float = 0.25, refine: int = 8):
+        if not isinstance(intrinsics, C.Intrinsics):
+            raise TypeError(f"intrinsics must be hbeo.conventions.Intrinsics, got {type(intrinsics).__name__}")
+        self.intrinsics, self.object_size = intrinsics, _check_size(object_size)
+        self.step, self.refine, self.level = float(step), int(refine), LEVEL
+        if not (math.isfinite(self.step) and 0 < self.step <= 2):
+            raise ValueError(f"step must be in (0, 2] voxels, got {step!r}")
+        if self.refine < 0:
+            raise ValueError(f"refine must be >= 0, got {refine!r}")
+        self.device = torch.device(device)
+        grids = list(grids) if not isinstance(grids, np.ndarray) or grids.ndim != 3 else [grids]
+        if not grids:
+            raise ValueError("GridCaster needs at least one grid")
+        res = None
+        los, dims, fields, safes, slopes = [], [], [], [], []
+        for i, g in enumerate(grids):
+            try:
+                f = grid_field(g, smooth)
+            except ValueError as err:
+                raise ValueError(f"grid {i}: {err}") from None
+            if res is None:
+                res = f.shape[0] - 2
+            elif f.shape[0] - 2 != res:
+                raise ValueError(f"grid {i} is {f.shape[0] - 2}^3, grid 0 is {res}^3: all grids must share one size")
+            lo, crop, safe, slope = object_volume(f)
+            los.append(lo)
+            dims.append(crop.shape)
+            fields.append(crop)
+            safes.append(safe)
+            slopes.append(slope)
+        self.resolution = int(res)
+        self.n_objects = len(grids)
+        dev = self.device
+        # one layout for all: each object a block (its x size, DY, DZ), so a cell's corners lie at the
+        # same flat offsets for every object
+        shp = np.array(dims, np.int64)
+        DY, DZ = int(shp[:, 1].max()), int(shp[:, 2].max())
+        offs = np.concatenate([[0], np.cumsum(shp[:, 0] * DY * DZ)])
+        field = np.zeros(int(offs[-1]), np.float32)
+        safe = np.zeros(int(offs[-1]), np.uint8)
+        for i, (fi, si) in enumerate(zip(fields, safes)):
+            nx, ny, nz = fi.shape
+            field[offs[i]:offs[i + 1]].reshape(nx, DY, DZ)[:, :ny, :nz] = fi
+            safe[offs[i]:offs[i + 1]].reshape(nx, DY, DZ)[:, :ny, :nz] = si
+        self._field, self._safe = torch.from_numpy(field).to(dev), torch.from_numpy(safe).to(dev)
+        self._strides = (DY * DZ, DZ)
+        corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], np.int64)
+        self._corners = torch.from_numpy(corners @ np.array([DY * DZ, DZ, 1])).to(dev)   # x-major (8,)
+        # per object: flat offset; box lower and upper corner and 1 / slope
+        self._offset = torch.from_numpy(offs[:-1].astype(np.int64)).to(dev)
+        lo = np.array(los, np.float32)
+        self._lo = torch.from_numpy(lo).to(dev)
+        self._hi = torch.from_numpy((lo + shp - 2).astype(np.float32)).to(dev)
+        self._inv_slope = torch.from_numpy(1.0 / np.array(slopes, np.float32)).to(dev)
+        # voxels per metre, and the padded index of the object origin (the grid's centre)
+        self._k = self.resolution * C.OBJECT_VOXELS / C.RESOLUTION / self.object_size
+        self._c0 = self.resolution / 2.0 + 0.5
+        self._radius = math.sqrt(3.0) * (self.resolution / 2.0 + 1.0) / self._k      # metres, padded box
+        K = intrinsics
+        self._xs = ((torch.arange(K.width, dtype=torch.float64) - K.cx) / K.fx).float().to(dev)
+        self._ys = ((torch.arange(K.height, dtype=torch.float64) - K.cy) / K.fy).float().to(dev)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held on the device for the objects."""
+        return sum(t.numel() * t.element_size() for t in (self._field, self._safe))
+
+    def __repr__(self):
+        K = self.intrinsics
+        return f"<GridCaster {self.n_objects} grids of {self.resolution}^3, {K.width}x{K.height}, {self.device}>"
+
+    # -- public
+    def render(self, objects, Rs, ts) -> torch.Tensor:
+        """Depth (B, H, W) float32 on the caster's device, metres, 0 = miss, of objects ``objects``
+        (B,) (indices into the grids) at poses ``Rs`` (B, 3, 3), ``ts`` (B, 3) metres (tensors on any
+        device, or arrays). ValueError for a bad shape, an index out of range, a matrix that is not a
+        rotation, a non-finite pose or an object not entirely beyond :attr:`znear`."""
+        dev = self.device
+        obj = torch.as_tensor(objects, device=dev).long().reshape(-1)
+        Rs = torch.as_tensor(Rs, device=dev, dtype=torch.float64)
+        ts = torch.as_tensor(ts, device=dev, dtype=torch.float64)
+        B = obj.shape[0]
+        if Rs.shape != (B, 3, 3) or ts.shape != (B, 3):
+            raise ValueError(f"need rotations (B, 3, 3) and translations (B, 3) for B = {B} objects, got "
+                             f"{tuple(Rs.shape)} and {tuple(ts.shape)}")
+        K = self.intrinsics
+        if B == 0:
+            return torch.zeros((0, K.height, K.width), dtype=torch.float32, device=dev)
+        if bool(((obj < 0) | (obj >= self.n_objects)).any()):
+            raise ValueError(f"object indices must lie in 0..{self.n_objects - 1}, got {obj.min()}..{obj.max()}")
+        if not bool(torch.isfinite(Rs).all() & torch.isfinite(ts).all()):
+            raise ValueError("pose contains NaN or infinity")
+        _check_rotations(Rs)
+        near = ts[:, 2] - self._radius <= self.znear
+        if bool(near.any()):
+            i = int(torch.nonzero(near)[0, 0])
+            raise ValueError(f"pose {i}: object not entirely beyond z = {self.znear} m (centre at z = "
+                             f"{float(ts[i, 2]):.3g} m, bounding radius {self._radius:.3g} m)")
+        return self._march(obj, Rs, ts)
+
+    # -- the march
+    def _cells(self, off, x):
+        """Flat index of the cell holding each point x (n, 3) (box coordinates, voxels) of objects at flat
+        offsets ``off`` (n,), and the point's offsets in it (n, 3)."""
+        q = x.clamp_min(0)
+        i0 = q.floor()
+        fr = q - i0
+        i0 = i0.long()
+        sx, sy = self._strides
+        return off + i0[:, 0] * sx + i0[:, 1] * sy + i0[:, 2], fr
+
+    def _trilinear(self, base, fr):
+        """Trilinear field at the points of cells ``base`` (n,) with offsets ``fr`` (n, 3)."""
+        c = self._field.take(base[:, None] + self._corners)                         # (n, 8)
+        c = torch.lerp(c[:, 0::2], c[:, 1::2], fr[:, 2:3])                           # along z: (n, 4)
+        c = torch.lerp(c[:, 0::2], c[:, 1::2], fr[:, 1:2])                           # along y: (n, 2)
+        return torch.lerp(c[:, 0], c[:, 1], fr[:, 0])
+
+    def _march(self, obj, Rs, ts):
+        K, dev = self.intrinsics, self.device
+        B, H, W = obj.shape[0], K.height, K.width
+        # p(z) = a + z b in box coordinates (padded index - lo): a = k R^T (-t) + c0 - lo per image,
+        # b = k R^T d per pixel with d = (x_u, y_v, 1); z is the camera depth
+        M = (self._k * Rs.transpose(1, 2)).float()                          # (B, 3, 3)
+        lo_b = self._lo[obj]
+        a = (self._k * (Rs.transpose(1, 2) @ -ts[:, :, None])[:, :, 0] + self._c0).float() - lo_b   # (B, 3)
+        ext = self._hi[obj] - lo_b                                            # (B, 3) box size
+        b = (self._xs[None, None, :, None] * M[:, None, None, :, 0] + self._ys[None, :, None, None]
+             * M[:, None, None, :, 1] + M[:, None, None, :, 2])             # (B, H, W, 3)
+        inv = 1.0 / b
+        z1 = -a[:, None, None] * inv
+        z2 = (ext[:, None, None] - a[:, None, None]) * inv
+        z_in = torch.minimum(z1, z2).amax(-1).clamp_min(self.znear)
+        z_out = torch.maximum(z1, z2).amin(-1)
+        ray = torch.nonzero((z_in < z_out).reshape(-1)).squeeze(1)        # flat (B*H*W) ray ids
+        depth = torch.zeros(B * H * W, dtype=torch.float32, device=dev)
+        if ray.numel() == 0:
+            return depth.reshape(B, H, W)
+        img = torch.div(ray, H * W, rounding_mode="floor")
+        o = obj[img]
+        b_r = b.reshape(-1, 3)[ray]
+        z = z_in.reshape(-1)[ray]
+        # state per live ray: floats a (3), b (3), z, z_end, metres of z per voxel, 1 / slope, previous z;
+        # integers: ray id, flat offset of the object
+        fs = torch.cat([a[img], b_r, z[:, None], z_out.reshape(-1)[ray][:, None],
+                        (1.0 / b_r.norm(dim=1))[:, None], self._inv_slope[o][:, None], z[:, None]], 1)
+        ls = torch.stack([ray, self._offset[o]], 1)
+        hits_f, hits_l = [], []
+        while fs.shape[0]:
+            z = fs[:, 6]
+            base, fr = self._cells(ls[:, 1], fs[:, 0:3] + z[:, None] * fs[:, 3:6])
+            f = self._trilinear(base, fr)
+            hit = f >= self.level
+            # step: the safe distance, or what the slope allows, but at least `step` voxels
+            safe = torch.maximum(self._safe.take(base).float() * (1.0 / SAFE_UNITS), (self.level - f) * fs[:, 9])
+            z_next = z + safe.clamp_min(self.step) * fs[:, 8]
+            if bool(hit.any()):
+                h = torch.nonzero(hit).squeeze(1)
+                hits_f.append(fs[h])
+                hits_l.append(ls[h])
+            keep = torch.nonzero(~hit & (z_next < fs[:, 7])).squeeze(1)
+            fs[:, 10] = z
+            fs[:, 6] = z_next
+            fs, ls = fs.index_select(0, keep), ls.index_select(0, keep)
+        if not hits_f:
+            return depth.reshape(B, H, W)
+        fs, ls = torch.cat(hits_f), torch.cat(hits_l)
+        off, a_r, b_r = ls[:, 1], fs[:, 0:3], fs[:, 3:6]
+
+        def field(zz):
+            return self._trilinear(*self._cells(off, a_r + zz[:, None] * b_r))
+        zl, zh = fs[:, 10], fs[:, 6]
+        fl, fh = field(zl), field(zh)
+        for _ in range(self.refine):
+            zm = 0.5 * (zl + zh)
+            fm = field(zm)
+            up = fm >= self.level
+            zh, fh = torch.where(up, zm, zh), torch.where(up, fm, fh)
+            zl, fl = torch.where(up, zl, zm), torch.where(up, fl, fm)
+        # secant between the bracketing samples; a ray that starts inside (znear) keeps its first sample
+        w = ((self.level - fl) / (fh - fl).clamp_min(1e-12)).clamp(0, 1)
+        depth[ls[:, 0]] = torch.where(fl >= self.level, zl, zl + w * (zh - zl))
+        return depth.reshape(B, H, W)
