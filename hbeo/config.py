@@ -41,6 +41,10 @@ class DataConfig:
     #: once per validation object (a fixed set).
     train_data: str = "memory"
     stream_val_views: int = 2
+    #: The renderer of the run's training views (:class:`hbeo.render.views.RenderSettings` ``backend``):
+    #: ``auto`` (embree, else pyrender) or ``torch`` (:mod:`hbeo.render.gridcast`: grid datasets, on the
+    #: training device, the stream rendered a batch at a time).
+    render_backend: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -120,7 +124,8 @@ _FLAT_ORDER = ("name", "n_train_per_class", "n_test_per_class", "views_per_objec
                "beo_so3_grid", "beo_1dof_test_per_class", "beo_3dof_test_per_class", "needs_gpu",
                "voxcnn_channels", "voxcnn_bottleneck", "voxcnn_epochs", "voxcnn_batch_size", "voxcnn_lr",
                "voxcnn_views_per_object", "voxcnn_pos_weight", "train_data", "stream_val_views", "rotation",
-               "augment_roll", "shape_loss", "option_epochs", "options", "eval_views", "icp_test_per_class")
+               "augment_roll", "shape_loss", "option_epochs", "options", "eval_views", "icp_test_per_class",
+               "render_backend")
 
 
 @dataclass(frozen=True)
@@ -175,7 +180,7 @@ PROFILES: dict[str, Profile] = {
     "full": Profile(
         "full",
         data=DataConfig(n_train_per_class=None, n_test_per_class=None, views_per_object=1800,
-                        image_size=(320, 240), workers=8, train_data="stream"),
+                        image_size=(320, 240), workers=8, train_data="stream", render_backend="torch"),
         recipe=RecipeConfig(epochs=2, batch_size=128),
         baselines=BaselinesConfig(beo_so3_grid=8192),
         evaluation=EvaluationConfig(eval_views=3, beo_1dof_test_per_class=20, beo_3dof_test_per_class=5),
@@ -187,7 +192,7 @@ PROFILES: dict[str, Profile] = {
     "gpu-lease": Profile(
         "gpu-lease",
         data=DataConfig(n_train_per_class=None, n_test_per_class=None, views_per_object=100,
-                        image_size=(320, 240), workers=8, train_data="stream"),
+                        image_size=(320, 240), workers=8, train_data="stream", render_backend="torch"),
         recipe=RecipeConfig(epochs=1, batch_size=128),
         evaluation=EvaluationConfig(eval_views=3, beo_3dof_test_per_class=10, icp_test_per_class=10),
         needs_gpu=True),

@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import sys
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -264,7 +264,12 @@ class Run:
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
                                                backend=opts.backend)
         if settings.backend == "torch":                   # grids only: refuse a mesh dataset before any work
-            check_grid_records(self.records("train"))
+            if opts.backend != "torch" and not all(r.has_grid for r in self.records("train")):
+                print(f"[hbeo] profile {prof.name} renders with torch, which needs grids; {self.dataset.name} has "
+                      f"meshes: rendering them with embree / pyrender (backend auto)", file=sys.stderr)
+                settings = replace(settings, backend="auto")
+            else:
+                check_grid_records(self.records("train"))
         main = distributed.world().main
         if main:                                          # rank 0 prepares the shared files, the others wait
             if (opts.data or prof.data.train_data) == "stream":

@@ -40,6 +40,7 @@ import torch
 
 from hbeo import conventions as C
 from hbeo.render.renderer import _check_size, grid_field
+from hbeo.rotations import check_rotation_matrices
 
 #: the field's level that is the surface (as grid_mesh's marching cubes)
 LEVEL = 0.5
@@ -75,19 +76,6 @@ def object_volume(field: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     out[:-1, :-1, :-1] = crop
     slope = math.sqrt(sum(float(np.abs(np.diff(crop, axis=ax)).max(initial=0.0)) ** 2 for ax in range(3)))
     return lo.astype(np.int64), out, safe, max(slope, 1e-3)
-
-
-def _check_rotations(Rs: torch.Tensor) -> None:
-    """ValueError unless every R (B, 3, 3) is a rotation (orthonormal, det +1, within 1e-4), as
-    :class:`hbeo.render.renderer.Renderer` checks its poses."""
-    R64 = Rs.double()
-    err = (R64.transpose(1, 2) @ R64 - torch.eye(3, dtype=R64.dtype, device=R64.device)).abs().amax(dim=(1, 2))
-    det = torch.linalg.det(R64)
-    bad = ~((err <= 1e-4) & ((det - 1).abs() <= 1e-4))       # NaN counts as bad
-    if bool(bad.any()):
-        i = int(torch.nonzero(bad)[0, 0])
-        raise ValueError(f"R[{i}] is not a rotation matrix (|R^T R - I| = {float(err[i]):.2g}, det = "
-                         f"{float(det[i]):.6g}; need orthonormal with det +1 within 1e-4)")
 
 
 class GridCaster:
@@ -197,7 +185,7 @@ class GridCaster:
             raise ValueError(f"object indices must lie in 0..{self.n_objects - 1}, got {obj.min()}..{obj.max()}")
         if not bool(torch.isfinite(Rs).all() & torch.isfinite(ts).all()):
             raise ValueError("pose contains NaN or infinity")
-        _check_rotations(Rs)
+        check_rotation_matrices(Rs.cpu().numpy())      # the one check (hbeo.rotations); B x 9 numbers
         near = ts[:, 2] - self._radius <= self.znear
         if bool(near.any()):
             i = int(torch.nonzero(near)[0, 0])

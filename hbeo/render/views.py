@@ -126,10 +126,13 @@ class RenderSettings:
 
     @classmethod
     def from_profile(cls, profile, **overrides) -> "RenderSettings":
-        """Image size and views per object from a run profile (name or :class:`~hbeo.config.Profile`);
-        keyword arguments override any field (``None`` values are ignored)."""
+        """Image size, views per object and renderer from a run profile (name or :class:`~hbeo.config.Profile`);
+        keyword arguments override any field (``None`` values are ignored; ``backend="auto"`` means the profile's)."""
         prof = config.get_profile(profile)
-        kw = {"image_size": tuple(prof.data.image_size), "views_per_object": prof.data.views_per_object}
+        kw = {"image_size": tuple(prof.data.image_size), "views_per_object": prof.data.views_per_object,
+              "backend": prof.data.render_backend}
+        if overrides.get("backend") == "auto":
+            overrides = {**overrides, "backend": None}
         kw.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**kw)
 
