@@ -3,6 +3,8 @@
 #                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile)
 #   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
+#   make test-numpy2 the fast tests on numpy 2 (the GPU machines' stack): a second venv, $(NP2VENV), with
+#                    pip install .[render,dask,notebooks,book,test] under the lock's versions but numpy>=2, no pyrender
 #   make book        render a run folder's executed notebooks, tables and figures to a static HTML site that
 #                    opens offline: results/$(PROFILE)-$(DATASET)/book/index.html (RUN=DIR: another run folder)
 PYTHON ?= python3
@@ -11,8 +13,9 @@ PY     := $(VENV)/bin/python
 PROFILE ?= cpu
 DATASET ?= procedural
 RUN    ?= results/$(PROFILE)-$(DATASET)
+NP2VENV ?= .venv-numpy2
 
-.PHONY: setup reproduce book test test-unit test-fast test-notebooks benchmark clean-results
+.PHONY: setup reproduce book test test-unit test-fast test-numpy2 test-notebooks benchmark clean-results
 
 setup: $(VENV)/.installed
 
@@ -33,6 +36,17 @@ test-unit: setup
 
 test-fast: setup
 	$(PY) -m pytest -q -m "not slow" tests
+
+# pyproject.toml's dependencies and extras, constrained to requirements.txt's versions except numpy (extras
+# stripped: pip takes none in a constraints file); hbeo itself from the working tree (PYTHONPATH)
+test-numpy2:
+	test -x $(NP2VENV)/bin/python || $(PYTHON) -m venv $(NP2VENV)
+	sed -e '/^numpy==/d' -e 's/\[[a-z,]*\]//' requirements.txt > $(NP2VENV)/constraints.txt
+	$(NP2VENV)/bin/python -m pip -q install -c $(NP2VENV)/constraints.txt ".[render,dask,notebooks,book,test]" "numpy>=2"
+	$(NP2VENV)/bin/python -m pip -q uninstall -y hbeo
+	$(NP2VENV)/bin/python -m ipykernel install --sys-prefix --name python3 >/dev/null
+	$(NP2VENV)/bin/python -c "import numpy; assert int(numpy.__version__.split('.')[0]) >= 2, numpy.__version__"
+	PYTHONPATH=$(CURDIR) $(NP2VENV)/bin/python -m pytest -q -m "not slow" -p no:cacheprovider -rs tests
 
 test-notebooks: setup
 	$(PY) -m pytest -q --nbval-lax notebooks

@@ -50,7 +50,9 @@ def _published_headers(path) -> dict:
         for info in zf.infolist():
             with zf.open(info) as f:
                 version = np.lib.format.read_magic(f)
-                shape, _, dtype = np.lib.format._read_array_header(f, version)
+                read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                               (2, 0): np.lib.format.read_array_header_2_0}[version]
+                shape, _, dtype = read_header(f)
             out[info.filename[:-4]] = (dtype, shape)
     return out
 

@@ -17,13 +17,16 @@ Backends
     ``pyrender`` OpenGL rasterization, headless (EGL where an EGL device works, else OSMesa).
     Both sample the same pixel centres: masks agree except where a pixel centre lies within
     floating-point tolerance of a silhouette edge, and depths agree to ~1e-6 relative.
-    ``backend="auto"`` picks embree when importable, else pyrender; the environment variable
+    ``backend="auto"`` picks embree when importable, else pyrender (optional:
+    :func:`pyrender_available`); the environment variable
     ``HBEO_RENDER_BACKEND`` overrides "auto", ``HBEO_GL_PLATFORM`` (``egl`` / ``osmesa``) the
     OpenGL platform.
 """
 from __future__ import annotations
 
 import contextlib
+import functools
+import importlib.util
 import os
 import subprocess
 import sys
@@ -153,6 +156,30 @@ def embree_available() -> bool:
         return True
     except (ImportError, OSError):
         return False
+
+
+@functools.lru_cache(maxsize=None)
+def pyrender_available() -> bool:
+    """Whether pyrender is installed and imports here. Asked of a child process, once: importing
+    pyrender here would load OpenGL before :func:`gl_platform` has chosen its platform."""
+    if importlib.util.find_spec("pyrender") is None:
+        return False
+    try:
+        res = subprocess.run([sys.executable, "-c", "import pyrender"], capture_output=True, timeout=120, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return res.returncode == 0
+
+
+def _import_pyrender():
+    """pyrender, or a RuntimeError that says why it cannot be used here."""
+    try:
+        import pyrender
+    except (ImportError, AttributeError) as err:     # AttributeError: a numpy name a pyrender release lacks
+        raise RuntimeError(f"render backend 'pyrender' cannot import pyrender here ({type(err).__name__}: {err}); "
+                           f"install it (pip install --no-deps -r requirements-nodeps.txt) or use the embree "
+                           f"backend (pip install embreex)") from err
+    return pyrender
 
 
 def _egl_works() -> bool:
@@ -433,7 +460,7 @@ class Renderer:
         K = self.intrinsics
         if self._gl is None:
             gl_platform()
-            import pyrender
+            pyrender = _import_pyrender()
             renderer = pyrender.OffscreenRenderer(K.width, K.height)
             scene = pyrender.Scene(bg_color=np.zeros(4), ambient_light=np.zeros(3))
             # pyrender's window coordinate of pixel i's centre is i + 0.5; OpenCV's is i
@@ -442,7 +469,7 @@ class Renderer:
             self._gl = [renderer, scene, cam, None]
         renderer, scene, cam, node = self._gl
         if info.handle is None:
-            import pyrender
+            pyrender = _import_pyrender()
             if node is not None:
                 scene.remove_node(node)
             # DEPTH_ONLY rendering culls back faces: add every triangle in both windings,
@@ -453,7 +480,7 @@ class Renderer:
             node = scene.add(pyrender.Mesh([prim]))
             self._gl[3] = info.handle = node
         flip = np.diag([1.0, -1.0, -1.0])               # OpenCV camera axes -> OpenGL camera axes
-        import pyrender
+        pyrender = _import_pyrender()
         # DEPTH_ONLY; SEG in addition only because it makes pyrender disable GL_MULTISAMPLE:
         # its framebuffer (EGL) is 4x multisampled, and a multisampled depth buffer resolves to
         # one sample's depth, off the pixel centre. With SEG every sample is the pixel centre's.
