@@ -1,7 +1,8 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hbeo.evaluation.evaluate import summarize, symmetric_pose_error
+from hbeo.evaluation.evaluate import summarize
+from hbeo.rotations import symmetric_pose_error_deg as symmetric_pose_error
 from hbeo.rotations import uniform_so3
 
 

@@ -9,7 +9,7 @@ from hbeo.data import gridset
 from hbeo.render import poses
 from hbeo.render import renderer as render
 from hbeo.errors import DataError
-from hbeo.evaluation.evaluate import symmetric_pose_error
+from hbeo.rotations import symmetric_pose_error_deg as symmetric_pose_error
 from hbeo.baselines.icp import ICPBaseline
 from hbeo.rotations import geodesic_deg, super_fibonacci, uniform_so3, yaw_elevation_to_matrix
 

@@ -59,9 +59,6 @@ from hbeo.rundir import failure
 from hbeo.subspace.metrics import edt_error, iou, naive_error
 
 
-#: the old name of :func:`hbeo.rotations.symmetric_pose_error_deg`, kept while
-#: :mod:`hbeo.lessons.yourdepth` imports it from here
-symmetric_pose_error = symmetric_pose_error_deg
 
 
 @dataclass(frozen=True)

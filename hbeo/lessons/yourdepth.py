@@ -206,7 +206,7 @@ def answer_summary(model, pred, frame: Frame) -> str:
          f"({np.linalg.norm(t):.2f} m away)")
     if frame.truth:
         from hbeo.conventions import UP_SYMMETRY
-        from hbeo.evaluation.evaluate import symmetric_pose_error
+        from hbeo.rotations import symmetric_pose_error_deg as symmetric_pose_error
         from hbeo.rotations import geodesic_deg
         R_true = frame.truth["rotation"]
         err = float(geodesic_deg(pred.rotation[0], R_true))
