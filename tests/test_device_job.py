@@ -2,6 +2,7 @@
 the same scripts a lent GPU machine runs. A call that runs out of waiting leaves the worker running and exits 3;
 a later call waits on; a worker killed mid-training is restarted from its checkpoint; the packed files fit the
 device tool's transfer limits (at most 8 files, 16 MiB each) and the model parts join to the run's model."""
+import importlib.util
 import json
 import os
 import signal
@@ -57,8 +58,9 @@ def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_u
 
 
 def test_device_job_splits_a_model_over_15_mib_into_parts(tmp_path, monkeypatch):
-    sys.path.insert(0, str(JOB.parent))
-    import device_job
+    spec = importlib.util.spec_from_file_location("device_job_script", JOB)
+    device_job = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(device_job)
     run = tmp_path / "run"
     run.mkdir()
     blob = os.urandom(2 * device_job.PART_BYTES + 123)
