@@ -1,7 +1,8 @@
 # hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
 #   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/, training
 #                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints)
-#   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile)
+#   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile), then the fast
+#                    tests again on numpy 2 (test-numpy2)
 #   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
 #   make test-numpy2 the fast tests on numpy 2 (the GPU machines' stack): a second venv, $(NP2VENV), with
 #                    pip install .[render,dask,notebooks,book,test] under the lock's versions but numpy>=2, no pyrender
@@ -29,7 +30,7 @@ reproduce: setup
 book: setup
 	$(PY) -m hbeo book $(RUN)
 
-test: setup test-unit test-notebooks
+test: setup test-unit test-notebooks test-numpy2
 
 test-unit: setup
 	$(PY) -m pytest -q tests
