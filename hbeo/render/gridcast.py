@@ -29,7 +29,8 @@ Method, per ray ``p(z) = a + z b`` (padded index coordinates, linear in the came
 Memory: per object the field (float32) and the safe distance (uint8) over its box only, about
 50 kB for a ModelNet10 object at R = 30 (a few hundred MB for all of ModelNet10's training grids).
 
-Imports torch, numpy, scipy, :mod:`hbeo.conventions` and :mod:`hbeo.render.renderer`.
+Imports torch, numpy, scipy, :mod:`hbeo.conventions`, :mod:`hbeo.rotations` (the poses are checked on the host,
+B x 9 numbers, before the march) and :mod:`hbeo.render.renderer`.
 """
 from __future__ import annotations
 
