@@ -16,8 +16,12 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
    ``eval_hbeo_3dof.json``, the training curves ``train_log.csv``, ``provenance.json``, the worker's
-   ``job.log``, and the model, split into parts of at most 15 MiB (``model.hbeo.part00`` ...; join them
-   with ``cat model.hbeo.part* > model.hbeo``; ``lease.json`` holds its SHA-256): at most 8 files.
+   ``job.log``, and the model gzipped and split into parts of at most 15 MiB (``model.hbeo.gz.part00`` ...;
+   join them with ``cat model.hbeo.gz.part* | gunzip > model.hbeo``; ``lease.json`` holds its SHA-256):
+   at most 8 files, under 64 MiB. The paper's network (61 MB of float32 weights, plus a 31 MB subspace)
+   fits only because the worker first rounds the weights to bfloat16 values (still float32, the low 16 bits
+   zero, so they compress by half; ``--no-round`` keeps them): the evaluation scores that rounded model, the
+   one that comes back, and ``lease.json`` keeps the unrounded file's SHA-256.
 
 Exit status 0 when the job is finished and packed, 3 while the worker is still running, 1 if it failed
 (its ``job.log`` is packed either way). ``bash scripts/device_job.sh`` wraps it for the device (carried
@@ -26,6 +30,7 @@ wheels installed first); ``scripts/device_prepare.sh`` makes what must travel.
 from __future__ import annotations
 
 import argparse
+import gzip
 import hashlib
 import json
 import os
@@ -40,6 +45,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 PART_BYTES = 15 * 2**20          # one file back from the device: at most 16 MiB
+MAX_PARTS = 3                    # beside 5 other files: 8 files and under 64 MiB in all
 STATE = "job_state.json"         # the worker's stages, written atomically by the worker
 LOG = "job.log"
 
@@ -89,6 +95,29 @@ def summary(m: dict) -> dict:
             "iou": m.get("completion", {}).get("iou")}
 
 
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def round_weights_bf16(path: Path) -> None:
+    """Round the model file's float32 weights to the nearest bfloat16 values, in place (atomically), still
+    stored as float32: the low 16 bits become zero, so the packed file compresses to about half and the
+    paper's network (61 MB of weights) comes back inside the transfer limit. The evaluation then scores
+    the rounded model, the one that comes back."""
+    import torch
+    from hbeo.model.inference import HBEO
+    model = HBEO.load(path)
+    with torch.no_grad():
+        for t in list(model.net.parameters()) + list(model.net.buffers()):
+            if t.dtype == torch.float32:
+                t.copy_(t.to(torch.bfloat16).to(torch.float32))
+    model.save(path)
+
+
 def worker(args) -> int:
     """The background process: train (resuming from the checkpoint), evaluate, write lease.json."""
     from hbeo.evaluation import protocol
@@ -115,6 +144,11 @@ def worker(args) -> int:
         state["n_params"] = log.get("n_params")
         _write_json(state_path, state)
     prov = run.dir.training_provenance(run.dir.model)
+    if args.round_bf16 and not state.get("weights_rounded_to"):
+        state["unrounded_model_sha256"] = _sha256(run.dir.model)
+        round_weights_bf16(run.dir.model)
+        state["weights_rounded_to"] = "bfloat16"
+        _write_json(state_path, state)
     t1 = time.perf_counter()
     print(f"[worker] trained: {run.dir.model}; evaluating on the test split", flush=True)
     metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False)
@@ -135,7 +169,7 @@ def worker(args) -> int:
 
 def start_worker(args) -> int:
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--profile", args.profile,
-           "--dataset", args.dataset, "--run", str(args.run),
+           "--dataset", args.dataset, "--run", str(args.run), *([] if args.round_bf16 else ["--no-round"]),
            "--checkpoint-every", str(args.checkpoint_every)]
     if args.max_steps:
         cmd += ["--max-steps", str(args.max_steps)]
@@ -155,12 +189,13 @@ def pack(run_dir: Path, out: Path, state: dict) -> list[Path]:
     if model.exists():
         data = model.read_bytes()
         state["model_sha256"], state["model_bytes"] = hashlib.sha256(data).hexdigest(), len(data)
-        parts = [data[i:i + PART_BYTES] for i in range(0, len(data), PART_BYTES)]
-        if len(parts) > 4:
-            raise SystemExit(f"{model}: {len(data)} bytes need {len(parts)} parts of 15 MiB; at most 4 fit "
-                             "the transfer limit beside the other files")
+        packed = gzip.compress(data, compresslevel=6, mtime=0)
+        parts = [packed[i:i + PART_BYTES] for i in range(0, len(packed), PART_BYTES)]
+        if len(parts) > MAX_PARTS:
+            raise SystemExit(f"{model}: {len(data)} bytes, {len(packed)} gzipped, need {len(parts)} parts of 15 MiB; "
+                             f"at most {MAX_PARTS} fit the transfer limit beside the other files")
         for i, part in enumerate(parts):
-            p = out / f"{model.name}.part{i:02d}"
+            p = out / f"{model.name}.gz.part{i:02d}"
             p.write_bytes(part)
             written.append(p)
     _write_json(out / "lease.json", state)
@@ -181,6 +216,8 @@ def main(argv=None) -> int:
     p.add_argument("--wait", type=float, default=540, help="seconds to wait for the worker in this call (540)")
     p.add_argument("--checkpoint-every", type=int, default=500, metavar="STEPS")
     p.add_argument("--max-steps", type=int, help="stop training after this many steps (a smoke test)")
+    p.add_argument("--no-round", dest="round_bf16", action="store_false",
+                   help="keep the float32 weights unrounded (the paper's network then does not fit the way back)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     from hbeo.rundir import RunDir

@@ -2,6 +2,7 @@
 the same scripts a lent GPU machine runs. A call that runs out of waiting leaves the worker running and exits 3;
 a later call waits on; a worker killed mid-training is restarted from its checkpoint; the packed files fit the
 device tool's transfer limits (at most 8 files, 16 MiB each) and the model parts join to the run's model."""
+import gzip
 import importlib.util
 import json
 import os
@@ -51,13 +52,18 @@ def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_u
     files = sorted(out.iterdir())
     assert len(files) <= 8 and all(f.stat().st_size <= 16 * 2**20 for f in files)
     assert {"lease.json", "eval_hbeo_3dof.json", "train_log.csv", "provenance.json", "job.log"} <= {f.name for f in files}
-    joined = b"".join(p.read_bytes() for p in sorted(out.glob("model.hbeo.part*")))
+    joined = gzip.decompress(b"".join(p.read_bytes() for p in sorted(out.glob("model.hbeo.gz.part*"))))
     assert joined == (run / "model.hbeo").read_bytes()
+    assert lease["weights_rounded_to"] == "bfloat16" and lease["unrounded_model_sha256"] != lease["model_sha256"]
+    from hbeo.model.inference import HBEO
+    import torch
+    w = torch.cat([p.detach().flatten() for p in HBEO.load(run / "model.hbeo").net.parameters()])
+    assert torch.equal(w, w.to(torch.bfloat16).float())          # the weights that came back are bf16 values
     third = _job(run, tmp_path / "out2")                 # finished: a later call only packs again
     assert third.returncode == 0 and "started" not in third.stdout
 
 
-def test_device_job_splits_a_model_over_15_mib_into_parts(tmp_path, monkeypatch):
+def test_device_job_gzips_and_splits_a_model_over_15_mib_into_parts(tmp_path, monkeypatch):
     spec = importlib.util.spec_from_file_location("device_job_script", JOB)
     device_job = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(device_job)
@@ -66,12 +72,15 @@ def test_device_job_splits_a_model_over_15_mib_into_parts(tmp_path, monkeypatch)
     blob = os.urandom(2 * device_job.PART_BYTES + 123)
     (run / "model.hbeo").write_bytes(blob)
     files = device_job.pack(run, tmp_path / "out", {"status": "done"})
-    parts = sorted((tmp_path / "out").glob("model.hbeo.part*"))
-    assert [p.stat().st_size for p in parts] == [device_job.PART_BYTES, device_job.PART_BYTES, 123]
-    assert b"".join(p.read_bytes() for p in parts) == blob
+    parts = sorted((tmp_path / "out").glob("model.hbeo.gz.part*"))
+    assert len(parts) == 3 and all(p.stat().st_size == device_job.PART_BYTES for p in parts[:2])
+    assert gzip.decompress(b"".join(p.read_bytes() for p in parts)) == blob
     lease = json.loads((tmp_path / "out" / "lease.json").read_text())
     assert lease["model_bytes"] == len(blob) and len(lease["model_sha256"]) == 64
     assert len(files) == 4
+    (run / "model.hbeo").write_bytes(os.urandom(3 * device_job.PART_BYTES + 1))   # too big even gzipped: refused
+    with pytest.raises(SystemExit, match="at most 3 fit"):
+        device_job.pack(run, tmp_path / "out2", {"status": "done"})
 
 
 def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_file):
