@@ -37,28 +37,12 @@ def sample(objects: int):
 
 def agreement(grids, names, poses: int) -> dict:
     from hbeo.conventions import Intrinsics
-    from hbeo.render.gridcast import GridCaster
-    from hbeo.render.renderer import Renderer, grid_mesh
-    from hbeo.render.views import RenderSettings
-    K = Intrinsics.kinect(320, 240)
-    caster = GridCaster(grids, K)
-    sampler, rng = RenderSettings(image_size=(320, 240)).view_sampler, np.random.default_rng(0)
-    ious, classes, diffs, inter, union = [], [], [], 0, 0
-    with Renderer(K, "embree") as ren:
-        for i, g in enumerate(grids):
-            R, t = sampler.sample(poses, rng)
-            ref = ren.render_many(grid_mesh(g), R, t)
-            out = caster.render(np.full(poses, i), R, t).numpy()
-            for a, b in zip(ref, out):
-                ma, mb = a > 0, b > 0
-                ious.append(float((ma & mb).sum() / (ma | mb).sum()))
-                classes.append(names[i])
-                inter, union = inter + int((ma & mb).sum()), union + int((ma | mb).sum())
-                diffs.append(np.abs(a - b)[ma & mb])
-    d = np.concatenate(diffs) * 1000
-    ious = np.array(ious)
+    from hbeo.render.gridcast import embree_agreement
+    m = embree_agreement(grids, Intrinsics.kinect(320, 240), poses, seed=0)
+    ious, classes = m["iou"], [n for n in names for _ in range(poses)]
+    d = m["depth_diff"] * 1000
     worst = {c: float(min(x for x, n in zip(ious, classes) if n == c)) for c in dict.fromkeys(classes)}
-    return {"images": len(ious), "iou_pooled": inter / union, "iou_min": float(ious.min()),
+    return {"images": len(ious), "iou_pooled": m["iou_pooled"], "iou_min": float(ious.min()),
             "iou_p10": float(np.percentile(ious, 10)), "iou_median": float(np.median(ious)),
             "images_below_0.98": int((ious < 0.98).sum()), "iou_min_per_class": worst,
             "depth_mm_median": float(np.median(d)), "depth_mm_p90": float(np.percentile(d, 90)),

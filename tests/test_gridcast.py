@@ -17,9 +17,8 @@ import pytest
 import torch
 
 from hbeo.conventions import Intrinsics
-from hbeo.render.gridcast import GridCaster
+from hbeo.render.gridcast import GridCaster, embree_agreement
 from hbeo.render.renderer import Renderer, embree_available, grid_mesh
-from hbeo.render.views import RenderSettings
 from hbeo.rotations import axis_angle_to_matrix, z_angle_to_matrix
 
 needs_embree = pytest.mark.skipif(not embree_available(), reason="embreex not installed")
@@ -28,20 +27,8 @@ K320 = Intrinsics.kinect(320, 240)
 
 def _agreement(grids, n_poses, seed=0):
     """(IoU per image, pooled IoU, |depth difference| over pixels both hit) of the caster and embree."""
-    caster = GridCaster(grids, K320)
-    sampler, rng = RenderSettings(image_size=(320, 240)).view_sampler, np.random.default_rng(seed)
-    ious, inter, union, diffs = [], 0, 0, []
-    with Renderer(K320, "embree") as ren:
-        for i, g in enumerate(grids):
-            R, t = sampler.sample(n_poses, rng)
-            ref = ren.render_many(grid_mesh(g), R, t)
-            out = caster.render(np.full(n_poses, i), R, t).numpy()
-            for a, b in zip(ref, out):
-                ma, mb = a > 0, b > 0
-                ious.append((ma & mb).sum() / (ma | mb).sum())
-                inter, union = inter + (ma & mb).sum(), union + (ma | mb).sum()
-                diffs.append(np.abs(a - b)[ma & mb])
-    return np.array(ious), inter / union, np.concatenate(diffs)
+    m = embree_agreement(grids, K320, n_poses, seed)
+    return m["iou"], m["iou_pooled"], m["depth_diff"]
 
 
 def _sample_grids(vox30, per_class, classes=None):
