@@ -51,6 +51,39 @@ def accuracy(rows) -> dict:
             "class_mean_accuracy": round(class_mean_accuracy(cls, np.array([r[1] for r in rows])), 4)}
 
 
+def interval(rows, n_boot: int = 1000, seed: int = 0) -> dict:
+    """95 % bootstrap intervals of accuracy and class-mean accuracy over objects (resampled within
+    each class, an object bringing all its queries)."""
+    objs = sorted({(r[0], r[2]) for r in rows})
+    index = {o: i for i, o in enumerate(objs)}
+    ok, n = np.zeros(len(objs)), np.zeros(len(objs))
+    for c, pred, o in rows:
+        ok[index[(c, o)]] += c == pred
+        n[index[(c, o)]] += 1
+    cls = np.array([c for c, _ in objs])
+    rng = np.random.default_rng(seed)
+    acc, cm = [], []
+    for _ in range(n_boot):
+        k, m, per = 0.0, 0.0, []
+        for c in np.unique(cls):
+            members = np.flatnonzero(cls == c)
+            pick = members[rng.integers(0, len(members), len(members))]
+            per.append(ok[pick].sum() / n[pick].sum())
+            k, m = k + ok[pick].sum(), m + n[pick].sum()
+        acc.append(k / m)
+        cm.append(np.mean(per))
+    return {"accuracy_ci95": np.percentile(acc, [2.5, 97.5]).round(4).tolist(),
+            "class_mean_accuracy_ci95": np.percentile(cm, [2.5, 97.5]).round(4).tolist()}
+
+
+def per_class(rows) -> dict:
+    out = {}
+    for c in sorted({r[0] for r in rows}):
+        sel = [r for r in rows if r[0] == c]
+        out[c] = {"n_queries": len(sel), "accuracy": round(float(np.mean([r[0] == r[1] for r in sel])), 4)}
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--run", default=str(ROOT / "results" / "cpu-modelnet10-vox30"))
@@ -78,6 +111,9 @@ def main(argv=None) -> int:
         "train_vs_train": {"all": describe(nn_tr), **{ds.classes[c]: describe(nn_tr[ytr == c]) for c in range(10)}},
         "test_vs_train": {"all": describe(nn_te), **{ds.classes[c]: describe(nn_te[yte == c]) for c in range(10)}}}
     hist_edges = np.round(np.arange(0.0, 1.0001, 0.05), 2)
+    top_edges = np.round(np.arange(0.8, 1.0001, 0.01), 2)
+    log["histogram_top"] = {"edges": top_edges.tolist(), "train_vs_train": np.histogram(nn_tr, top_edges)[0].tolist(),
+                            "test_vs_train": np.histogram(nn_te, top_edges)[0].tolist()}
     log["histogram"] = {"edges": hist_edges.tolist(),
                         "train_vs_train": np.histogram(nn_tr, hist_edges)[0].tolist(),
                         "test_vs_train": np.histogram(nn_te, hist_edges)[0].tolist()}
@@ -121,7 +157,14 @@ def main(argv=None) -> int:
         te_near = dict(zip(ids_te, nn_te))
         diag = {"source": {"val": str(ev_val.relative_to(ROOT)), "test": str(per_query.relative_to(ROOT)),
                            "views": m["views"]},
-                "val_all": accuracy(rows), "test_all": accuracy(test_rows)}
+                "val_all": {**accuracy(rows), **interval(rows)}, "test_all": {**accuracy(test_rows), **interval(test_rows)},
+                "per_class": {"val": per_class(rows), "test": per_class(test_rows)}}
+        # validation's per-class accuracies weighted by the test split's class counts (public dataset
+        # metadata, not results): what overall validation accuracy says of a test split with the test's mix
+        te_counts = {ds.classes[c]: int((yte == c).sum()) for c in range(10)}
+        va_pc = diag["per_class"]["val"]
+        diag["val_reweighted_to_test_mix"] = round(sum(va_pc[c]["accuracy"] * te_counts[c] for c in va_pc)
+                                                   / sum(te_counts[c] for c in va_pc), 4)
         for t in THRESHOLDS:
             diag[f"val_twin@{t}"] = accuracy([r for r in rows if near[r[2]] >= t])
             diag[f"val_no_twin@{t}"] = accuracy([r for r in rows if near[r[2]] < t])
@@ -141,6 +184,8 @@ def main(argv=None) -> int:
     print("histogram of nearest IoU (bins of 0.05 from 0):")
     print("  train:", log["histogram"]["train_vs_train"])
     print("  test: ", log["histogram"]["test_vs_train"])
+    print("  train, bins of 0.01 from 0.8:", log["histogram_top"]["train_vs_train"])
+    print("  test,  bins of 0.01 from 0.8:", log["histogram_top"]["test_vs_train"])
     for t, g in log["groups"].items():
         print(f"groups at IoU >= {t}: {g['n_groups']} groups, largest {g['largest']}, "
               f"{g['objects_in_groups_of_2_plus']} objects in groups of 2+, grouped validation {g['n_val']} objects")
@@ -151,9 +196,14 @@ def main(argv=None) -> int:
     if "reference_model" in log:
         print("reference model (accuracy / class-mean accuracy, queries, objects):")
         for k, d in log["reference_model"].items():
-            if k != "source" and d.get("n_queries"):
+            if isinstance(d, dict) and d.get("n_queries"):
                 print(f"  {k:22s} {d['accuracy']:.3f} / {d['class_mean_accuracy']:.3f}  "
-                      f"n={d['n_queries']} queries, {d['n_objects']} objects")
+                      f"n={d['n_queries']} queries, {d['n_objects']} objects"
+                      + (f"  ci95 {d['accuracy_ci95']} / {d['class_mean_accuracy_ci95']}" if "accuracy_ci95" in d else ""))
+        rm = log["reference_model"]
+        print("  per class (val / test):", {c: (rm["per_class"]["val"][c]["accuracy"], rm["per_class"]["test"][c]["accuracy"])
+                                           for c in rm["per_class"]["val"]})
+        print(f"  validation accuracy reweighted to the test split's class counts: {rm['val_reweighted_to_test_mix']:.3f}")
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(log, indent=1) + "\n")
