@@ -121,3 +121,25 @@ def test_class_mean_accuracy_by_hand():
     m = means.means()
     assert m["class_mean_accuracy"] == pytest.approx((0.75 + 1 + 0.5) / 3)
     assert m["accuracy"] == pytest.approx(5 / 7)
+
+
+def test_training_data_holds_out_the_grouped_validation_records(ci_run, ci_grids, ci_render):
+    """training_data's grouped split (memory source) holds out exactly validation_records' objects under
+    a grouped profile, and never splits a group; a mesh dataset without grids is refused by name."""
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.model.fit import ViewOptions, training_data
+    prof = config.get_profile("ci", val_split="grouped", twin_iou=0.6)
+    ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
+    data = training_data(ci_run, ViewOptions(), progress=False, val_split="grouped", twin_iou=0.6)
+    m = data.manifest
+    held = {m.object_ids[p] for p in np.unique(m.image_objects()[data.val.indices])}
+    val = datasets.validation_records(ds, prof, gridset=ci_grids["train"])
+    assert held == {r.id for r in val} and len(held) >= len(ds.classes)
+    train = datasets.select(ds, "train", prof)
+    groups = dedup.twin_groups(datasets.record_grids(train, ci_grids["train"]),
+                               [ds.classes.index(r.cls) for r in train], 0.6)
+    for g in np.unique(groups):
+        assert len({r.id in held for r, k in zip(train, groups) if k == g}) == 1
+    with pytest.raises(ValueError, match="has no grid.*GridSet"):
+        datasets.validation_records(ds, prof)

@@ -9,18 +9,17 @@ test split (issue 29; measured in ``benchmarks/bench_duplicates.py``).
 
 Grids are as stored (ModelNet objects are aligned per class; no alignment search here): bool or 0/1
 (n, 30, 30, 30) or (n, 27000). IoU is |a & b| / |a | b| over occupied voxels, computed per class with
-float32 matrix products (intersections ``A @ B.T``). Imports numpy only.
+float32 matrix products (intersections ``A @ B.T``). Imports numpy and :mod:`hbeo.config` only.
 """
 from __future__ import annotations
 
 import numpy as np
 
-#: The grouped split's IoU threshold: same-class training objects whose grids overlap at least this
-#: much are one group. Chosen on the training split alone: its nearest-neighbour IoU histogram falls
-#: smoothly to ~30 objects per 0.01 bin over 0.95-0.99 and then spikes (358 objects in [0.99, 1]), the
-#: near-duplicate mode; 0.95 takes the spike with a margin while groups stay small (largest 11; 47 at
-#: 0.9, 297 at 0.8: chains). See ``benchmarks/README.md``, "Near-duplicates".
-TWIN_IOU = 0.95
+from hbeo import config
+
+#: The grouped split's default IoU threshold: same-class training objects whose grids overlap at least
+#: this much are one group (the profiles' :attr:`hbeo.config.DataConfig.twin_iou`, where its reason is).
+TWIN_IOU = config.DataConfig.twin_iou
 #: The validation splits :func:`hbeo.data.datasets.split_validation` knows: ``object`` (objects drawn
 #: at random per class, the split every committed result used) and ``grouped`` (whole groups of
 #: near-duplicates, :func:`split_groups`).
