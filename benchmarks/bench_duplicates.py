@@ -1,12 +1,13 @@
 """Near-duplicates in ModelNet10 (30^3 grids) and how well each validation split predicts test (issue 29).
 
-    python benchmarks/bench_duplicates.py [--run results/cpu-modelnet10-vox30] [--threshold 0.9]
+    python benchmarks/bench_duplicates.py [--run results/cpu-modelnet10-vox30]
 
 Measures, on the grids as stored (ModelNet is aligned per class), each training object's largest grid
 IoU to another training object of its class, and each test object's largest IoU to a training object of
 its class: quantiles and the share above 0.8 / 0.9 / 0.95, overall and per class. Then, for the object
 split every committed result used (``split_objects``, VAL_SEED) and for the grouped split
-(:func:`hbeo.data.dedup.split_groups` at ``--threshold``), the validation objects' largest IoU to the
+(:func:`hbeo.data.dedup.split_groups` at each threshold; the profiles' default is
+:data:`hbeo.data.dedup.TWIN_IOU`), the validation objects' largest IoU to the
 training part: how often a validation object keeps a twin in training, against how often a test object
 has one. Last, the diagnostic: the reference model's validation queries (``eval_val-ref.json``, the
 object split) scored apart for objects with and without a training twin, beside its test queries
@@ -87,13 +88,12 @@ def per_class(rows) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--run", default=str(ROOT / "results" / "cpu-modelnet10-vox30"))
-    p.add_argument("--threshold", type=float, default=None, help="the grouped split's IoU (default: TWIN_IOU)")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "logs" / "duplicates.json"))
     a = p.parse_args(argv)
 
     from hbeo.data import dedup
     from hbeo.data.datasets import VAL_FRACTION, VAL_SEED, get_dataset, split_objects
-    t_thr = dedup.TWIN_IOU if a.threshold is None else a.threshold
+    t_thr = dedup.TWIN_IOU
     t0 = time.perf_counter()
     ds = get_dataset("modelnet10-vox30")
     data = {}
