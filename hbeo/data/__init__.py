@@ -5,8 +5,8 @@ ModelNet10 30^3 grid file, a user's folder), the procedural generator (:mod:`~hb
 its part library :mod:`~hbeo.data.procedural_parts`), reading meshes
 (:mod:`~hbeo.data.meshio`), voxelization into the 3D ShapeNets grid layout
 (:mod:`~hbeo.data.voxel`), cached grid sets (:mod:`~hbeo.data.gridset`), one grid file of a whole dataset in the
-published layout (:mod:`~hbeo.data.gridfile`) and the ModelNet10
-download (:mod:`~hbeo.data.download`).
+published layout (:mod:`~hbeo.data.gridfile`), near-duplicate objects and the validation split that
+keeps them together (:mod:`~hbeo.data.dedup`) and the ModelNet10 download (:mod:`~hbeo.data.download`).
 
 May import: the foundation modules (:mod:`hbeo.conventions`, :mod:`hbeo.config`,
 :mod:`hbeo.errors`, :mod:`hbeo.storage`, :mod:`hbeo.rotations`, :mod:`hbeo.rundir`) only.

@@ -339,12 +339,61 @@ def split_objects(labels, val_fraction: float = 0.1, seed: int = 0) -> np.ndarra
     return val
 
 
-def validation_records(dataset: "Dataset", profile=None, per_class: int | None = None) -> list[ObjectRecord]:
+def validation_mask(labels, val_fraction: float = VAL_FRACTION, seed: int = VAL_SEED, how: str = "object",
+                    grids=None, twin_iou: float | None = None) -> np.ndarray:
+    """Which training objects (class index per object, (n,)) training holds out for validation, a bool
+    mask (n,), by the profile's ``val_split`` rule ``how``: ``object`` (:func:`split_objects`) or
+    ``grouped`` (:func:`hbeo.data.dedup.split_groups` over :func:`hbeo.data.dedup.twin_groups` of the
+    objects' ``grids`` (n, 30, 30, 30) at ``twin_iou``, default :data:`hbeo.data.dedup.TWIN_IOU`)."""
+    from hbeo.data import dedup
+    if how == "object":
+        return split_objects(labels, val_fraction, seed)
+    if how != "grouped":
+        raise ValueError(f"unknown val_split {how!r}; expected one of {', '.join(dedup.VAL_SPLITS)}")
+    if grids is None or len(grids) != len(labels):
+        raise ValueError(f"val_split 'grouped' needs one grid per training object: {len(labels)} objects, "
+                         f"{'no' if grids is None else len(grids)} grids")
+    groups = dedup.twin_groups(grids, labels, dedup.TWIN_IOU if twin_iou is None else twin_iou)
+    return dedup.split_groups(labels, groups, val_fraction, seed)
+
+
+def record_grids(records: list[ObjectRecord], gridset=None) -> np.ndarray:
+    """The grids (n, 30, 30, 30) bool of ``records``: each record's own :meth:`ObjectRecord.grid`, or
+    for records without one (mesh datasets) its row of ``gridset`` (a
+    :class:`hbeo.data.gridset.GridSet`, e.g. the run's training grids) by id; an object missing from
+    it (it failed to voxelize) gets an empty grid (a group of its own). ValueError naming the dataset
+    kind when records have no grids and no ``gridset`` is given."""
+    rows = {str(i): k for k, i in enumerate(gridset.ids)} if gridset is not None else None
+    out = np.zeros((len(records),) + (C.RESOLUTION,) * 3, bool)
+    for k, r in enumerate(records):
+        if r.has_grid:
+            out[k] = r.grid()
+        elif rows is None:
+            raise ValueError(f"record_grids: {r.split}/{r.id} has no grid (a mesh dataset); pass the run's "
+                             f"training GridSet (RunDir.grids('train'))")
+        elif r.id in rows:
+            out[k] = gridset.grids[rows[r.id]]
+    return out
+
+
+def _profile_split(profile) -> tuple[str, float | None]:
+    if profile is None:
+        return "object", None
+    prof = config.get_profile(profile)
+    return prof.data.val_split, prof.data.twin_iou
+
+
+def validation_records(dataset: "Dataset", profile=None, per_class: int | None = None,
+                       gridset=None) -> list[ObjectRecord]:
     """The training split's objects that training holds out (:data:`VAL_FRACTION`, :data:`VAL_SEED`,
-    by class, from :func:`select`'s training records of ``profile``), in that order; the first
-    ``per_class`` of each class when given. Their ``split`` stays ``"train"``."""
+    by class, from :func:`select`'s training records of ``profile``, by the profile's ``val_split``:
+    :func:`validation_mask`), in that order; the first ``per_class`` of each class when given. Their
+    ``split`` stays ``"train"``. ``gridset``: the run's training grids, which a ``grouped`` split of a
+    mesh dataset needs (:func:`record_grids`)."""
     train = select(dataset, "train", profile)
-    held = split_objects([dataset.classes.index(r.cls) for r in train], VAL_FRACTION, VAL_SEED)
+    how, twin = _profile_split(profile)
+    held = validation_mask([dataset.classes.index(r.cls) for r in train], VAL_FRACTION, VAL_SEED, how,
+                           record_grids(train, gridset) if how == "grouped" else None, twin)
     out = [r for r, h in zip(train, held) if h]
     if per_class is None:
         return out

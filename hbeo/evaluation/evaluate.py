@@ -13,6 +13,9 @@ verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
 or predicted, ``{file, reason, step, object, split}``: left out, the others still scored)
 ``accuracy``                         fraction of queries with the right class
+``class_mean_accuracy``              the mean over classes of each class's accuracy (the paper's Table I
+                                     total; :func:`class_mean_accuracy`): the training split is 9:1
+                                     between its largest and smallest class, the test split nearly balanced
 ``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
                                      ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
                                      turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`);
@@ -236,6 +239,22 @@ def _completion(truth: np.ndarray, pred: np.ndarray) -> dict:
             "iou": float(iou(truth, pred).mean())}
 
 
+def class_mean_accuracy(true, pred) -> float:
+    """The mean over the classes present in ``true`` of each class's accuracy (share of its queries
+    whose ``pred`` equals it): every class counts the same however many queries it has. NaN for no
+    queries. ``true``, ``pred``: (n,) class names or indices.
+
+    >>> class_mean_accuracy(["a", "a", "a", "b"], ["a", "a", "b", "a"])   # (2/3 + 0) / 2
+    0.3333333333333333
+    """
+    true, pred = np.asarray(true), np.asarray(pred)
+    if true.shape != pred.shape or true.ndim != 1:
+        raise ValueError(f"class_mean_accuracy: true {true.shape} and pred {pred.shape} must be the same (n,)")
+    if not len(true):
+        return float("nan")
+    return float(np.mean([(pred[true == c] == c).mean() for c in np.unique(true)]))
+
+
 def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, seed: int, sampler: str,
               noise: bool, n_objects: int) -> dict:
     """Metrics dict from per-query rows (class, pred, R_true, R_pred, grid, truth, ms)."""
@@ -262,7 +281,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
         conf[index[r["class"]], index[r["pred"]]] += 1
     return {"hbeo_version": __version__, "dataset": dataset, "split": split, "views": views, "seed": seed,
             "sampler": sampler, "noise": bool(noise), "n_objects": n_objects, "n_queries": len(rows),
-            "accuracy": float(correct.mean()),
+            "accuracy": float(correct.mean()), "class_mean_accuracy": class_mean_accuracy(cls, [r["pred"] for r in rows]),
             "pose_error_deg": {"mean": float(raw.mean()), "median": float(np.median(raw)),
                                "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),
                                "within_30": float((raw < 30).mean()), "within_30_sym": float((sym < 30).mean())},

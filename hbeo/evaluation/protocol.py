@@ -224,6 +224,17 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     return metrics
 
 
+def _val_split(model) -> str:
+    """The validation split (``object`` or ``grouped@<twin_iou>``) of the model's profile; ``object``
+    when the profile is unknown."""
+    from hbeo import config
+    try:
+        prof = config.get_profile(model.settings.profile)
+    except (ValueError, TypeError):
+        return "object"
+    return prof.data.val_split if prof.data.val_split == "object" else f"grouped@{prof.data.twin_iou}"
+
+
 def record_validation(run, model_path, model, metrics: dict) -> dict:
     """Add one row to the run's ``validation.csv`` (:attr:`RunDir.validation_log`): when, which model
     file (name, sha256, rotation head, roll augmentation), how it was evaluated and its validation
@@ -238,7 +249,9 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
            "method": metrics["method"] + ("+verify" if metrics.get("verify") else ""), "pose": metrics["pose"],
            "rolls": metrics.get("rolls"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
            "views": metrics["views"], "seed": metrics["seed"], "n_objects": metrics["n_objects"],
-           "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"], "pose_median_deg": pe["median"],
+           "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"],
+           "class_mean_accuracy": metrics.get("class_mean_accuracy"), "val_split": _val_split(model),
+           "pose_median_deg": pe["median"],
            "pose_median_sym_deg": pe["median_sym"], "within_30": pe["within_30"],
            "iou": metrics["completion"]["iou"]}
     append_csv(run.validation_log, [row])

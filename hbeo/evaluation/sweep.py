@@ -62,7 +62,8 @@ def sweep_rows(results: dict[str, dict], model_sha: str) -> list[dict]:
     for n, m in results.items():
         rows.append({"name": n, "model_sha256": model_sha, "split": m["split"], "views": m["views"], "seed": m["seed"],
                      "rolls": m["rolls"], "n_objects": m["n_objects"], "n_queries": m["n_queries"],
-                     "accuracy": m["accuracy"], "pose_median_deg": m["pose_error_deg"]["median"],
+                     "accuracy": m["accuracy"], "class_mean_accuracy": m.get("class_mean_accuracy"),
+                     "pose_median_deg": m["pose_error_deg"]["median"],
                      "within_30": m["pose_error_deg"]["within_30"], "iou": m["completion"]["iou"],
                      "edt": m["completion"]["edt"], "ms_per_query": m["runtime_ms"]["mean_per_query"],
                      "verify": json.dumps(m["verify"], sort_keys=True)})

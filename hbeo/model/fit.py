@@ -285,14 +285,36 @@ def _shard_coeff_stats(m: Manifest, progress: bool) -> tuple[np.ndarray, np.ndar
     return mean.astype(np.float32), (np.sqrt(np.maximum(s2 / n - mean * mean, 0)) + 1e-6).astype(np.float32)
 
 
+def _val_mask(run: RunDir, labels, ids, val_fraction: float, val_split: str, twin_iou: float | None,
+              gridset=None):
+    """The validation objects among a run's training objects (``labels``, ``ids``) by ``val_split``
+    (:func:`hbeo.data.datasets.validation_mask`); None for ``object`` (the callers' own rule, the same).
+    ``grouped`` takes the objects' grids from ``gridset`` or the run's training grid set by id."""
+    if val_split == "object":
+        return None
+    from hbeo.data.gridset import GridSet
+    if gridset is None:
+        if not run.grids("train").exists():
+            raise DataError(run.grids("train"), "val_split 'grouped' needs the run's training grids (notebook 01)")
+        gridset = GridSet.load(run.grids("train"))
+    rows = {str(i): k for k, i in enumerate(gridset.ids)}
+    grids = np.zeros((len(ids),) + gridset.grids.shape[1:], bool)
+    for k, i in enumerate(ids):
+        if str(i) in rows:
+            grids[k] = gridset.grids[rows[str(i)]]
+    return datasets.validation_mask(labels, val_fraction, VAL_SEED, val_split, grids, twin_iou)
+
+
 def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_roll: bool = False,
                   progress: bool = True, source: str = "memory", dataset=None, profile=None,
-                  settings: RenderSettings | None = None) -> TrainingData:
+                  settings: RenderSettings | None = None, val_split: str = "object",
+                  twin_iou: float | None = None) -> TrainingData:
     """The run's training images as (training, validation) datasets of the same items, split by
     object (:func:`hbeo.render.torch_datasets.split_by_object` with the fixed
     :data:`hbeo.data.datasets.VAL_SEED`, whatever the training seed: with the default
     ``val_fraction`` the validation objects are :func:`hbeo.data.datasets.validation_records`, on
-    which ``evaluate --split val`` scores); ``augment_roll`` rolls every training
+    which ``evaluate --split val`` scores; ``val_split`` "grouped" holds out whole groups of near-duplicates
+    instead, IoU >= ``twin_iou``: :func:`hbeo.data.datasets.validation_mask`); ``augment_roll`` rolls every training
     view by a random angle each time it is read (:mod:`hbeo.model.augment`). ``source``:
 
     ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
@@ -310,7 +332,9 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
     run = RunDir.of(run)
     if source == "memory":
         data = ViewArrays(run.renders("train"), view, progress=progress)
-        tr_idx, va_idx = split_by_object(data.manifest, val_fraction, VAL_SEED)
+        m = data.manifest
+        mask = _val_mask(run, m.object_labels, m.object_ids, val_fraction, val_split, twin_iou)
+        tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED, mask)
         train_set = Subset(data, tr_idx)
         if augment_roll:
             train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
@@ -320,7 +344,8 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
         shards = DepthShards(run.renders("train"), cache_shards=SHARD_MIX)
         m = shards.manifest
         mean, std = _shard_coeff_stats(m, progress)
-        tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED)
+        mask = _val_mask(run, m.object_labels, m.object_ids, val_fraction, val_split, twin_iou)
+        tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED, mask)
         K = m.settings.intrinsics
 
         def order(seed_, epoch):
@@ -335,11 +360,15 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
             raise ValueError("training_data: source 'stream' needs dataset, profile and settings")
         prof, ds = profile, dataset
         sub = ObjectSubspace.load(run.subspace)
-        grids = run_gridsets(run, ds, prof, progress=progress)["train"].grids
+        gridset = run_gridsets(run, ds, prof, progress=progress)["train"]
+        grids = gridset.grids
         coeffs = np.concatenate([sub.project(grids[i:i + 512]) for i in range(0, len(grids), 512)])
         mean, std = coeffs.mean(0), coeffs.std(0) + 1e-6
         records = datasets.select(ds, "train", prof)
-        val = split_objects([ds.classes.index(r.cls) for r in records], val_fraction, VAL_SEED)
+        labels = [ds.classes.index(r.cls) for r in records]
+        val = _val_mask(run, labels, [r.id for r in records], val_fraction, val_split, twin_iou, gridset)
+        if val is None:
+            val = split_objects(labels, val_fraction, VAL_SEED)
         K = settings.intrinsics
         train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
@@ -437,12 +466,15 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
             raise DataError(run.renders("train"), f"rendered with another subspace than {run.subspace}; render it "
                                                   f"again (notebook 03)")
     settings = settings or RenderSettings.from_profile(prof, backend=opts.backend)
-    data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings)
+    data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings,
+                         prof.data.val_split, prof.data.twin_iou)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
                     conv_channels=tuple(prof.network.conv_channels), fc=tuple(prof.network.fc),
                     kernel=prof.network.kernel, rotation=rotation, normalization=opts.normalization)
     how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
            "val_fraction": opts.val_fraction}
+    if prof.data.val_split != "object":    # object-split runs keep the settings (and checkpoints) they had
+        how["val_split"], how["twin_iou"] = prof.data.val_split, prof.data.twin_iou
     if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
         how["source"] = source
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had

@@ -116,25 +116,34 @@ def seed_everything(seed: int) -> None:
 
 
 class ValidationMeans:
-    """Example-weighted means over validation batches of a task's loss, its parts and class accuracy
-    (what every :meth:`TrainTask.validate` reports; the task adds its own metrics)."""
+    """Example-weighted means over validation batches of a task's loss, its parts and class accuracy,
+    and the class-mean accuracy (the mean over the classes present of each class's accuracy: the
+    paper's Table I total, whatever the validation objects' class mix); what every
+    :meth:`TrainTask.validate` reports; the task adds its own metrics."""
 
     def __init__(self):
         self.sums: dict[str, float] = {}
         self.n = self.correct = 0
+        self.per_class: dict[int, list[int]] = {}      #: label -> [correct, n]
 
     def add(self, loss: torch.Tensor, parts: dict[str, float], logits: torch.Tensor, labels: torch.Tensor) -> None:
         m = len(labels)
         for k, v in {"loss": loss.item(), **parts}.items():
             self.sums[k] = self.sums.get(k, 0.0) + v * m
         self.n += m
-        self.correct += int((logits.argmax(1) == labels).sum())
+        hit = (logits.argmax(1) == labels).cpu().numpy()
+        self.correct += int(hit.sum())
+        for c, h in zip(labels.cpu().numpy().tolist(), hit.tolist()):
+            cell = self.per_class.setdefault(int(c), [0, 0])
+            cell[0] += int(h)
+            cell[1] += 1
 
     def means(self) -> dict[str, float]:
-        """{loss, each part, accuracy}; {} when no example was added."""
+        """{loss, each part, accuracy, class_mean_accuracy}; {} when no example was added."""
         if self.n == 0:
             return {}
-        return {**{k: v / self.n for k, v in self.sums.items()}, "accuracy": self.correct / self.n}
+        return {**{k: v / self.n for k, v in self.sums.items()}, "accuracy": self.correct / self.n,
+                "class_mean_accuracy": float(np.mean([k / n for k, n in self.per_class.values()]))}
 
 
 def lr_at(step: int, total: int, cfg: TrainConfig) -> float:

@@ -137,12 +137,19 @@ class DepthShards(TorchDataset):
         return state
 
 
-def split_by_object(manifest, val_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def split_by_object(manifest, val_fraction: float = 0.1, seed: int = 0, mask=None) -> tuple[np.ndarray, np.ndarray]:
     """Image indices (train, validation) of a rendered set, split by object: all views of an
     object fall on the same side. Stratified: each class gives ``round(val_fraction * n)`` of
-    its n objects (at least one when it has two or more and val_fraction > 0)."""
+    its n objects (at least one when it has two or more and val_fraction > 0). ``mask``: which of the
+    set's objects (bool, one per ``object_ids``) are validation objects, instead of that rule (e.g.
+    :func:`hbeo.data.datasets.validation_mask`'s grouped split)."""
     m = manifest.manifest if isinstance(manifest, DepthShards) else Manifest.load(manifest)
-    val = split_objects(m.object_labels, val_fraction, seed)
+    if mask is None:
+        val = split_objects(m.object_labels, val_fraction, seed)
+    else:
+        val = np.asarray(mask, bool)
+        if val.shape != (len(m.object_labels),):
+            raise ValueError(f"split_by_object: mask has shape {val.shape}; the set has {len(m.object_labels)} objects")
     img_obj = m.image_objects()
     idx = np.arange(len(img_obj), dtype=np.int64)
     return idx[~val[img_obj]], idx[val[img_obj]]
