@@ -8,7 +8,11 @@ import json
 import sys
 
 from hbeo.errors import HBEOError
+from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
 from hbeo.rundir import DEFAULT_MODEL
+
+#: the --sampler help: the readings of the view protocol (hbeo.render.poses)
+_SAMPLER_HELP = "; ".join(f"{k}: {v}" for k, v in SAMPLER_HELP.items()).replace("%", "%%")
 
 
 def _dataset_arg(p, profile="cpu"):
@@ -174,8 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder; sets go to OUT/render_SPLIT (default: results/PROFILE-DATASET)")
     p.add_argument("--split", choices=("train", "test", "both"), default="train", help="split(s) to render (train)")
     p.add_argument("--views", type=int, help="views per object (default: the profile's)")
-    p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
-                   help="so3: uniform rotations (the paper's 3-DOF setting); upright: yaw and elevation")
+    p.add_argument("--sampler", choices=SAMPLERS, default="so3", help=_SAMPLER_HELP)
     p.add_argument("--noise", action="store_true", help="apply the Kinect-like sensor noise model")
     p.add_argument("--workers", type=int, default=0,
                    help="processes of the local Dask cluster (default: the profile's; unused with --scheduler)")
@@ -209,8 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shape-loss", choices=("coeffs", "voxels"),
                    help="shape term: the standardized coefficient error (paper) or the completed grid's occupancy "
                         "error through the basis (default: the profile's recipe, hbeo.config.RecipeConfig.fit_kwargs)")
-    p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
-                   help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
+    p.add_argument("--sampler", choices=SAMPLERS, default="so3", help="training viewpoints; " + _SAMPLER_HELP)
     p.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"), default="auto",
                    help="renderer of the training views (auto); torch: ray-march each object's grid (grid "
                         "datasets only); with --data stream, whole batches on the training device")
@@ -260,7 +262,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(each evaluation is added to validation.csv beside the model)")
     p.add_argument("--views", type=int, default=1, help="views per object (1)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sampler", choices=("so3", "upright"), help="viewpoints (default: the model's training sampler)")
+    p.add_argument("--sampler", choices=SAMPLERS,
+                   help="viewpoints (default: the model's training sampler); " + _SAMPLER_HELP)
     p.add_argument("--noise", action="store_true", help="apply Kinect-like sensor noise")
     p.add_argument("--per-class", type=int, help="at most this many objects per class")
     p.add_argument("--strict", action="store_true",

@@ -16,7 +16,9 @@ Convention (the pose facts are :mod:`hbeo.conventions`'; this module fixes the e
     * The 3-DOF order of an upright view: ``R = Rz(roll) @ E(elevation) @ Rz(yaw)``: the object
       turns by ``yaw`` about its own +z first, the camera then looks down at it from
       ``elevation`` above its horizon (:func:`yaw_elevation_to_matrix`), and last rolls about
-      its optical axis (``Rz`` in the camera frame, :func:`z_angle_to_matrix`).
+      its optical axis (``Rz`` in the camera frame, :func:`z_angle_to_matrix`);
+      :func:`yaw_elevation_roll_to_matrix` builds it, for the view samplers of
+      :mod:`hbeo.render.poses` (the upright one has roll 0).
     * Batched over leading ``...`` dimensions; an argument whose trailing shape is wrong raises
       ``ValueError`` naming the function and the shape that arrived.
 
@@ -45,7 +47,7 @@ __all__ = [
     "direction_to_matrix", "geodesic", "geodesic_deg", "matrix_to_axis_angle", "matrix_to_quaternion",
     "matrix_to_sixd", "project_to_so3", "quaternion_to_matrix", "sixd_to_matrix", "super_fibonacci",
     "symmetric_pose_error_deg", "uniform_so3", "view_deg_to_matrix", "x_angle_to_matrix",
-    "yaw_elevation_to_matrix", "z_angle_to_matrix",
+    "yaw_elevation_roll_to_matrix", "yaw_elevation_to_matrix", "z_angle_to_matrix",
 ]
 
 #: how far a matrix may be from orthonormal (max |R^T R - I|) and its determinant from +1 and still
@@ -313,6 +315,19 @@ def yaw_elevation_to_matrix(yaw, elevation) -> np.ndarray:
     f = np.stack([zeros, ce, -se], -1)                 # camera forward
     R_cw = np.stack([x, y, f], axis=1)                 # object -> camera, before the yaw
     return (R_cw @ z_angle_to_matrix(yaw)).reshape(lead + (3, 3))
+
+
+def yaw_elevation_roll_to_matrix(yaw, elevation, roll) -> np.ndarray:
+    """Rotations (..., 3, 3) of the 3-DOF order of a view (module docstring):
+    ``R = Rz(roll) @ E(elevation) @ Rz(yaw)``, radians, broadcast against each other: the object
+    turns by ``yaw`` about its up axis (+z), a camera without roll looks down at it from
+    ``elevation`` above its horizon (:func:`yaw_elevation_to_matrix`; negative: from below), and
+    the camera last rolls by ``roll`` about its optical axis (:func:`z_angle_to_matrix` in the
+    camera frame). The camera looks along ``R.T @ (0, 0, 1)`` = (sin(yaw) cos(e), cos(yaw) cos(e),
+    -sin(e)) in object axes, whatever the roll."""
+    yaw, elevation, roll = np.broadcast_arrays(np.asarray(yaw, np.float64), np.asarray(elevation, np.float64),
+                                               np.asarray(roll, np.float64))
+    return z_angle_to_matrix(roll) @ yaw_elevation_to_matrix(yaw, elevation)
 
 
 def direction_to_matrix(direction) -> np.ndarray:

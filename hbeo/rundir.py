@@ -13,6 +13,7 @@ other module and every notebook asks a :class:`RunDir` for a path::
     beo.npz, icp.npz, voxcnn.hbeo  baselines: fitted baseline files
     partial_train*.npz           baselines: the 3-D CNN's cached partial training grids
     eval_<method>_<pose>.json    evaluation: metrics of one method on the test views
+    eval_<method>_<pose>_<sampler>.json  evaluation: the same under another reading of the view protocol
     eval_<name>.json             evaluation: other evaluations, named by whoever ran them
     validation.csv, verify_sweep.csv  evaluation: validation runs and verify settings tried
     models.json, model_table.md  report: the README's model table, its rows and the table
@@ -226,9 +227,15 @@ class RunDir:
         return self.path / ("partial_train.npz" if views is None else f"partial_train_v{int(views)}.npz")
 
     # --- reproduction (notebooks 05-07) ---
-    def evaluation(self, method: str, pose: str) -> Path:
-        """Metrics JSON of ``method`` under pose setting ``pose`` on this run's test views."""
-        return self.path / f"eval_{_check_name('method', method)}_{_check_name('pose', pose)}.json"
+    def evaluation(self, method: str, pose: str, sampler: str | None = None) -> Path:
+        """Metrics JSON of ``method`` under pose setting ``pose`` on this run's test views: with the
+        model's own view sampler (``sampler`` None), or under another reading of the view protocol
+        (``sampler``, a name of :data:`hbeo.render.poses.SAMPLERS`, checked by the caller):
+        ``eval_<method>_<pose>_<sampler>.json``."""
+        stem = f"eval_{_check_name('method', method)}_{_check_name('pose', pose)}"
+        if sampler is not None:
+            stem += f"_{_check_name('sampler', sampler)}"
+        return self.path / f"{stem}.json"
 
     def figure(self, name: str) -> Path:
         """A figure of a notebook, ``name`` like ``05_confusion``."""

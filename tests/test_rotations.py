@@ -185,3 +185,19 @@ def test_symmetric_pose_error_is_the_geodesic_error_modulo_turns_about_up():
     assert np.allclose(RT.symmetric_pose_error_deg(R @ half, R, 0), 180)
     turn = RT.z_angle_to_matrix(np.radians(100))                                       # 4-fold: 100 = 90 + 10
     assert np.allclose(RT.symmetric_pose_error_deg(R @ turn, R, 4), 10)
+
+
+def test_yaw_elevation_roll_is_the_documented_order():
+    """R = Rz(roll) @ E(elevation) @ Rz(yaw): roll 0 is the upright view, the roll turns about the
+    optical axis (the camera's axis in object axes stays put), and a quarter roll moves the object's
+    up axis from the image's top (-y) to its right (+x)."""
+    from hbeo.rotations import yaw_elevation_roll_to_matrix, yaw_elevation_to_matrix, z_angle_to_matrix
+    y, e = np.array([0.3, 2.0, 5.0]), np.array([0.4, -0.7, 1.2])
+    assert np.array_equal(yaw_elevation_roll_to_matrix(y, e, 0.0), yaw_elevation_to_matrix(y, e))
+    R = yaw_elevation_roll_to_matrix(y, e, np.array([0.5, 1.0, 4.0]))
+    assert R.shape == (3, 3, 3) and np.allclose(R @ np.swapaxes(R, 1, 2), np.eye(3)) and np.allclose(np.linalg.det(R), 1)
+    axis = np.stack([np.sin(y) * np.cos(e), np.cos(y) * np.cos(e), -np.sin(e)], -1)
+    assert np.allclose(np.swapaxes(R, 1, 2)[:, :, 2], axis)
+    assert np.allclose(R, z_angle_to_matrix([0.5, 1.0, 4.0]) @ yaw_elevation_to_matrix(y, e))
+    up = yaw_elevation_roll_to_matrix(0.0, 0.0, np.pi / 2) @ [0, 0, 1]
+    assert np.allclose(up, [1, 0, 0])

@@ -11,9 +11,16 @@ Pairs
     subset of the same pairs. Per-query results (``per_query``: object, view, class, errors) are kept
     in each metrics file and gathered in one table per run (:func:`per_query_table`).
 
+Readings
+    The views are drawn by the model's training sampler unless another reading of the view
+    protocol is asked for (:data:`hbeo.render.poses.SAMPLERS`; :func:`evaluation`'s ``sampler``,
+    :func:`readings` for all of them). Under one reading view j of object o is one image for every
+    method; across readings the objects and each view's random stream are the same, the images not.
+
 Cache
-    A result is written to :meth:`hbeo.rundir.RunDir.evaluation` (``eval_<method>_<pose>.json``)
-    with the request that produced it (:func:`request`): the setting, objects and views, the code
+    A result is written to :meth:`hbeo.rundir.RunDir.evaluation` (``eval_<method>_<pose>.json``, or
+    ``eval_<method>_<pose>_<sampler>.json`` under another reading than the model's own)
+    with the request that produced it (:func:`request`): the setting, reading, objects and views, the code
     version (:func:`hbeo.storage.tree_digest` of the package), the dataset's fingerprint (the grid
     file's sha256), and the sha256 of the HBEO model file and of the baseline's file. A later call
     with the same request reads it; anything else evaluates again.
@@ -89,37 +96,58 @@ def _sha(path: Path) -> str | None:
     return sha256_file(path)[:16] if path.exists() else None
 
 
-def request(run, method: str, pose: str) -> dict:
-    """What decides an evaluation's result (its cache key): the setting, the objects and views, the
-    seed, the code version, the dataset's fingerprint and the model and baseline files' hashes.
-    ``run``: a :class:`hbeo.run.Run`."""
+def request(run, method: str, pose: str, sampler: str | None = None) -> dict:
+    """What decides an evaluation's result (its cache key): the setting, the reading of the view
+    protocol (``sampler``; None: the model's own), the objects and views, the seed, the code version,
+    the dataset's fingerprint and the model and baseline files' hashes. ``run``: a :class:`hbeo.run.Run`."""
     per_class, views = eval_plan(run.profile, method, pose)
     base = method.split("-")[0]
-    return {"method": method, "pose": pose, "dataset": run.dataset.name,
+    return {"method": method, "pose": pose, "sampler": sampler, "dataset": run.dataset.name,
             "dataset_fingerprint": run.dataset.fingerprint(), "per_class": per_class, "views": views, "seed": SEED,
             "code": code_version(), "model_sha256": _sha(run.dir.model),
             "baseline_sha256": None if base == "hbeo" else _sha(run.dir.baseline(base))}
 
 
-def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: bool = True) -> dict:
+def training_sampler(model) -> str:
+    """The view sampler an HBEO ``model`` was trained with (its render settings'; a file that does not
+    record one: :class:`~hbeo.render.views.RenderSettings`' default), the reading its evaluations use
+    when none is asked for."""
+    from hbeo.render.views import RenderSettings
+    return RenderSettings.from_dict(dict(model.settings.render)).sampler
+
+
+def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: bool = True,
+               sampler: str | None = None) -> dict:
     """Metrics of ``method``/``pose`` on the run's paired test views (:func:`eval_plan`,
     :func:`hbeo.evaluation.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
     when that file answers the same :func:`request`, else computed and written there (atomically).
     ``method`` :data:`VERIFIED` is HBEO with roll averaging and the verify step. The run's model is
-    trained first if missing (:meth:`hbeo.run.Run.model`). ``run``: a :class:`hbeo.run.Run`."""
+    trained first if missing (:meth:`hbeo.run.Run.model`). ``run``: a :class:`hbeo.run.Run`.
+
+    ``sampler``: the reading of the view protocol (:data:`hbeo.render.poses.SAMPLERS`); None or the
+    model's own training sampler (:func:`training_sampler`): the file above; another one: the views
+    drawn by that sampler from the same per-view streams, in ``eval_<method>_<pose>_<sampler>.json``
+    (:meth:`hbeo.rundir.RunDir.evaluation`)."""
     from hbeo.baselines.methods import check_method
     from hbeo.evaluation.evaluate import evaluate_model
     verified = method == VERIFIED
     pose = "3dof" if verified else check_method(method, pose)
-    path = run.dir.evaluation(method, pose)
+    model = None
+    if sampler is not None:
+        from hbeo.render.poses import check_sampler
+        check_sampler(sampler)
+        model = run.model(progress=progress)
+        if sampler == training_sampler(model):
+            sampler = None
+    path = run.dir.evaluation(method, pose, sampler)
     if path.exists():
         try:
             old = json.loads(path.read_text())
-            if old.get("request") == request(run, method, pose):
+            if old.get("request") == request(run, method, pose, sampler):
                 return old
         except (OSError, ValueError):
             pass
-    model = run.model(progress=progress)
+    model = model or run.model(progress=progress)
     meth = None if method in ("hbeo", VERIFIED) else run.baseline(method, progress=progress)
     verify, rolls = None, 1
     if verified:
@@ -127,17 +155,26 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
         verify, rolls = VerifyConfig(), VERIFIED_ROLLS if model.net.cfg.rotation == "bins" else 1
     per_class, views = eval_plan(run.profile, method, pose)
     m = evaluate_model(model, run.dataset, split="test", views=views, seed=SEED, per_class=per_class,
-                       progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
+                       progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify, sampler=sampler)
     if verified:
         m["method"] = VERIFIED
-    m["request"] = request(run, method, pose)
+    m["request"] = request(run, method, pose, sampler)
     atomic_text(path, json.dumps(m, indent=1))
     return m
 
 
-def evaluations(run, settings=EVALUATIONS, progress: bool = True) -> list[dict]:
-    """:func:`evaluation` of each (method, pose) in ``settings``, in order."""
-    return [evaluation(run, m, p, progress=progress) for m, p in settings]
+def evaluations(run, settings=EVALUATIONS, progress: bool = True, sampler: str | None = None) -> list[dict]:
+    """:func:`evaluation` of each (method, pose) in ``settings``, in order, under reading ``sampler``."""
+    return [evaluation(run, m, p, progress=progress, sampler=sampler) for m, p in settings]
+
+
+def readings(run, samplers=None, settings=EVALUATIONS, progress: bool = True) -> dict[str, list[dict]]:
+    """Every (method, pose) of ``settings`` under each reading of the view protocol: {sampler:
+    :func:`evaluations`} for each of ``samplers`` (default: every one of :data:`hbeo.render.poses.SAMPLERS`),
+    in order. Under one reading every method scores the same images; the readings share the objects
+    and the per-view streams (:func:`hbeo.render.views.query_rng`)."""
+    from hbeo.render.poses import SAMPLERS
+    return {s: evaluations(run, settings, progress=progress, sampler=s) for s in (samplers or SAMPLERS)}
 
 
 def per_query_table(evals: list[dict]):

@@ -36,7 +36,7 @@ Writes are atomic (:func:`hbeo.storage.atomic_file`) and deterministic: the same
 the same ``meta.json`` and ``weights.safetensors`` bytes (zip entries carry a fixed date).
 
 Imports the foundation (:mod:`hbeo.storage`, :mod:`hbeo.errors`) and
-:mod:`hbeo.subspace.basis`; the network classes are passed in by the callers (``build``), so the
+:mod:`hbeo.subspace.basis` (and the sampler names of :mod:`hbeo.render.poses`); the network classes are passed in by the callers (``build``), so the
 baselines layer can use this module without it importing them.
 """
 from __future__ import annotations
@@ -57,6 +57,7 @@ import torch
 
 from hbeo import __version__
 from hbeo.errors import DataError
+from hbeo.render.poses import SAMPLERS
 from hbeo.storage import atomic_file
 from hbeo.subspace.basis import FORMAT_VERSION as SUBSPACE_FORMAT_VERSION, ObjectSubspace
 
@@ -114,7 +115,8 @@ class ModelSettings:
         None: the output is the coefficients).
     ``render``
         the training images' :class:`hbeo.render.views.RenderSettings` as a dict ({}: unknown);
-        evaluation renders its queries with it and inference warns outside its distances.
+        evaluation renders its queries with it and inference warns outside its distances. Its
+        ``sampler``, when present, must be one of :data:`hbeo.render.poses.SAMPLERS`.
     ``profile``
         the profile the model was trained with, or None (not recorded: the whole split).
     ``augment_roll``
@@ -157,6 +159,8 @@ class ModelSettings:
             raise ValueError("settings: coeff_mean and coeff_std must be given together, of one length")
         if not isinstance(self.render, dict) or not all(isinstance(k, str) for k in self.render):
             bad("render", "an object (the render settings)", self.render)
+        if "sampler" in self.render and self.render["sampler"] not in SAMPLERS:
+            bad("render.sampler", f"one of {', '.join(SAMPLERS)} (hbeo.render.poses)", self.render["sampler"])
         if self.profile is not None and not isinstance(self.profile, str):
             bad("profile", "a profile name or null", self.profile)
         if not isinstance(self.shape_loss, str):

@@ -23,7 +23,10 @@ Query views (the paired test protocol)
     Evaluation draws view ``j`` of an object from ``default_rng([seed, split_code, object_key, j])``
     (:func:`query_rng`), where ``object_key`` (:func:`object_key`) is a hash of the object's class
     and id: the same (object, view) is the same image whatever list the object sits in, however
-    many views are asked for, and for every method.
+    many views are asked for, and for every method. The key leaves the sampler out: under one
+    sampler (one reading of the view protocol, :mod:`hbeo.render.poses`) view j of an object is
+    one image for every method; under two samplers it comes from the same stream, drawn into
+    different poses and offsets, so readings are paired by object and view index, not by image.
 
 Imports the foundation, :mod:`hbeo.data.gridset` and :mod:`hbeo.render` (poses, renderer, gridcast, noise).
 """
@@ -38,7 +41,7 @@ from hbeo import config
 from hbeo import conventions as C
 from hbeo.errors import DataError
 from hbeo.render.noise import SensorNoise
-from hbeo.render.poses import SAMPLERS, ViewSampler
+from hbeo.render.poses import ViewSampler, check_sampler
 from hbeo.rotations import matrix_to_axis_angle
 
 #: render backends: the mesh renderers of :mod:`hbeo.render.renderer` and ``torch``, the grid ray
@@ -55,9 +58,10 @@ class RenderSettings:
     """Everything that decides the rendered images (besides the objects themselves).
 
     image_size: (width, height) pixels; the camera is :meth:`Intrinsics.kinect` at that size.
-    views_per_object: images per object. sampler: ``"so3"`` (uniform rotations) or
-    ``"upright"``. object_size: longest side of every object, metres. distance: range of the
-    object centre's depth, metres. shift: largest offset of the object centre from the
+    views_per_object: images per object. sampler: the reading of the view protocol, one of
+    :data:`hbeo.render.poses.SAMPLERS` (``"so3"``: uniform rotations, the main one).
+    object_size: longest side of every object, metres. distance: range of the object centre's
+    depth, metres. shift: largest offset of the object centre from the
     optical axis, as a fraction of its depth. elevation_deg: camera elevation range of the
     upright sampler. backend: ``"auto"``, ``"pyrender"``, ``"embree"`` (meshes) or ``"torch"`` (the
     surface of each object's grid, ray-marched in torch: :mod:`hbeo.render.gridcast`). noise: apply
@@ -93,8 +97,7 @@ class RenderSettings:
         object.__setattr__(self, "views_per_object", _as_int(self.views_per_object, "RenderSettings.views_per_object"))
         if self.views_per_object < 1:
             raise ValueError(f"RenderSettings.views_per_object must be >= 1, got {self.views_per_object}")
-        if self.sampler not in SAMPLERS:
-            raise ValueError(f"unknown sampler {self.sampler!r}; expected one of {', '.join(SAMPLERS)}")
+        check_sampler(self.sampler)
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown render backend {self.backend!r}; expected one of {', '.join(BACKENDS)}")
         object.__setattr__(self, "object_size", float(self.object_size))
