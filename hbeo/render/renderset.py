@@ -67,6 +67,7 @@ from tqdm.auto import tqdm
 
 from hbeo import __version__
 from hbeo.errors import BatchError, DataError
+from hbeo.limits import check_render, check_workers
 from hbeo.rundir import RENDER_MANIFEST, failure
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
@@ -395,7 +396,9 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     (with ``images_per_s`` of this call). Shards are rendered by a LocalCluster of ``workers``
     processes, or by the Dask cluster whose scheduler is at ``scheduler`` (``workers`` is then
     unused); the same bytes either way. ``objects_per_shard`` defaults to about
-    :data:`IMAGES_PER_SHARD` images per shard (at least one object)."""
+    :data:`IMAGES_PER_SHARD` images per shard (at least one object). A set whose shards would not fit in
+    memory, or whose files would not fit on the disk, is refused before anything is written
+    (:func:`hbeo.limits.check_render`, :class:`hbeo.limits.ResourceError`)."""
     records = list(records)
     if not records:
         raise ValueError(f"render_set: no records to render for split {split!r}")
@@ -420,6 +423,11 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         bad = next(r for r in records if r.cls not in dataset.classes)
         raise ValueError(f"render_set: {_record_name(bad)} has class {bad.cls!r}, not one of the "
                          f"dataset's classes") from None
+    n_shards = -(-len(records) // objects_per_shard)
+    if scheduler is None:                  # local processes: only as many as there are shards start
+        check_workers(min(workers, n_shards), "--workers")
+    check_render(len(records), settings.views_per_object, settings.image_size, out_dir,        # before any work
+                 1 if scheduler else min(workers, n_shards), objects_per_shard)
     noise = _noise_description(SensorNoise()) if settings.noise else None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
