@@ -118,19 +118,20 @@ def check_rolls(rolls, option: str = "--rolls") -> int:
     return rolls
 
 
-def check_render(n_objects: int, views: int, image_size, out_dir, workers: int = 1, objects_per_shard: int = 1,
+def check_render(n_objects: int, views: int, image_size, out_dir, objects_per_shard: int = 1, workers: int | bool = 1,
                  option: str = "--views", free: int | None = None, memory: int | None = None) -> None:
     """Refuse (ResourceError) a rendered set of ``n_objects`` x ``views`` images of ``image_size`` (W, H)
     whose shards would not fit in memory (``min(workers, shards)`` shards of ``objects_per_shard``
-    objects rendered at once, :data:`RENDER_BYTES_PER_PIXEL`) or whose files would not fit in the free
-    space of ``out_dir`` (uncompressed size / 4, a lower bound of what compressed shards take).
+    objects rendered at once, :data:`RENDER_BYTES_PER_PIXEL`; ``workers`` local processes, checked with
+    :func:`check_workers`, or False: a remote cluster's, counted as one) or whose files would not fit in
+    the free space of ``out_dir`` (uncompressed size / 4, a lower bound of what compressed shards take).
     ``free`` and ``memory`` override the measured free disk and available memory (tests)."""
     views = _positive(option, views)
     w, h = image_size
     pixels = int(w) * int(h)
     images = int(n_objects) * views
     n_shards = -(-int(n_objects) // max(1, int(objects_per_shard)))
-    at_once = max(1, min(int(workers), n_shards))
+    at_once = 1 if workers is False else check_workers(min(int(workers), n_shards), memory=memory)
     mem = memory if memory is not None else available_memory()
     budget = mem * MEMORY_FRACTION
     per_view = RENDER_BYTES_PER_PIXEL * pixels * objects_per_shard * at_once

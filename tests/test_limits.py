@@ -90,8 +90,8 @@ def test_render_views_1e8_is_refused_up_front_with_the_estimate(tmp_path, capsys
 def test_render_estimates_memory_and_disk_and_names_what_fits(tmp_path):
     with pytest.raises(ResourceError, match=r"--views 1,000: .*4 shard.*4.9 GB of memory, 4.0 GB available; "
                                             r"the largest value that fits is 406$"):
-        limits.check_render(10, 1000, (320, 240), tmp_path, workers=4, objects_per_shard=1, memory=4 * GB)
-    limits.check_render(10, 406, (320, 240), tmp_path, workers=4, objects_per_shard=1, memory=4 * GB)
+        limits.check_render(10, 1000, (320, 240), tmp_path, 1, 4, memory=4 * GB)
+    limits.check_render(10, 406, (320, 240), tmp_path, 1, 4, memory=4 * GB)
     with pytest.raises(ResourceError, match=r"at least 2.5 GB on disk .*2.0 GB free in .*largest value that fits is 78,431"):
         limits.check_render(10, 10 ** 5, (80, 60), tmp_path, memory=10 ** 15, free=2 * GB)
     limits.check_render(10, 78_431, (80, 60), tmp_path, memory=10 ** 15, free=2 * GB)     # what it said fits
