@@ -30,6 +30,7 @@ from hbeo.data.gridset import build_gridset, run_gridsets
 from hbeo.errors import DataError, HBEOError
 from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
+from hbeo.limits import check_in_memory, check_workers
 from hbeo.render.views import RenderSettings, check_grid_records
 from hbeo.rundir import RunDir, failure_summary
 from hbeo.storage import atomic_text
@@ -270,6 +271,11 @@ class Run:
                 settings = replace(settings, backend="auto")
             else:
                 check_grid_records(self.records("train"))
+        if opts.loader_workers:
+            check_workers(opts.loader_workers, "--loader-workers")
+        n = len(self.records("train"))                    # refused before anything is rendered
+        check_in_memory(n * settings.views_per_object, settings.image_size, per=n,
+                        source=opts.data or prof.data.train_data, value=settings.views_per_object)
         main = distributed.world().main
         if main:                                          # rank 0 prepares the shared files, the others wait
             if (opts.data or prof.data.train_data) == "stream":

@@ -28,6 +28,7 @@ from tqdm.auto import tqdm
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.data.datasets import Dataset, ObjectRecord
+from hbeo.limits import check_workers
 from hbeo.errors import BatchError, DataError
 from hbeo.rundir import RunDir, failure
 from hbeo.storage import pack_bits, read_npz, unpack_bits, write_npz
@@ -232,6 +233,7 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     jobs = [([records[i] for i in items], settings) for items in chunks]
     needs_mesh = any(not records[i].has_grid for i in todo)
     if workers > 1 and len(chunks) > 1 and needs_mesh:
+        check_workers(min(workers, len(chunks)), "--workers")      # before the processes start
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for items, result in zip(chunks, pool.map(_chunk_job, jobs)):
                 done(items, result)

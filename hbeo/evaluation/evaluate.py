@@ -56,6 +56,7 @@ from hbeo.conventions import UP_SYMMETRY, Intrinsics
 from hbeo.data.gridset import record_grid
 from hbeo.errors import BatchError, DataError
 from hbeo.evaluation.method import HBEOMethod, Method, answer_label
+from hbeo.limits import check_evaluation
 from hbeo.render.views import object_key
 from hbeo.rotations import geodesic_deg, symmetric_pose_error_deg
 from hbeo.rundir import failure
@@ -159,6 +160,7 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
     records = split_records(dataset, split, per_class, setup.profile)
     if not records:
         raise ValueError(f"{dataset.name}: no objects in split {split!r}")
+    check_evaluation(len(records), views, len(methods), rs.image_size)   # before anything is rendered
     if unknown := sorted({r.cls for r in records} - set(classes)):
         raise ValueError(f"{dataset.name}: classes {', '.join(unknown)} are unknown to the model "
                          f"(it knows {', '.join(classes)})")

@@ -240,10 +240,12 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     be evaluated go to its ``failures.json``. Returns the metrics."""
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
+    from hbeo.limits import check_rolls
     from hbeo.model.inference import HBEO
     from hbeo.run import load_dataset, record_failures
     from hbeo.storage import atomic_file, check_outputs
     check_outputs({"--out": out}, {"--model": model_path})
+    check_rolls(rolls)                                  # before the model is read
     pose = check_method(method, pose)
     model = HBEO.load(model_path, precision=precision)
     folder = RunDir(Path(model_path).parent)

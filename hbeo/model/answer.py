@@ -124,11 +124,13 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     at fault."""
     from contextlib import ExitStack
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
+    from hbeo.limits import check_rolls
     from hbeo.model.inference import HBEO
     from hbeo.storage import atomic_file, check_outputs
     if out is not None:
         check_outputs({"--out": out, "--mesh": mesh_path}, {"--depth": depth_path, "--mask": mask_path,
                                                             "--model": model_path})
+    check_rolls(rolls)                                  # before the model is read
     if mesh_path and Path(mesh_path).suffix.lower() not in MESH_SUFFIXES:
         raise DataError(mesh_path, f"--mesh: unsupported mesh format; expected {', '.join(MESH_SUFFIXES)}")
     depth = read_depth(depth_path, depth_scale)

@@ -28,6 +28,7 @@ from torch.utils.data import Dataset, IterableDataset, Subset
 from tqdm.auto import tqdm
 
 from hbeo.errors import DataError
+from hbeo.limits import check_in_memory
 from hbeo.data import datasets
 from hbeo.data.datasets import VAL_SEED
 from hbeo.data.gridset import run_gridsets
@@ -134,6 +135,7 @@ class ViewArrays(Dataset):
     def __init__(self, manifest, opts: ViewOptions, coeff_mean=None, coeff_std=None, progress=True):
         m = Manifest.load(manifest)
         K = m.settings.intrinsics
+        check_in_memory(m.n_images, m.settings.image_size, m.coeffs_dim or 0, f"{m.root}")   # before loading
         depth, rot, lab, coeffs, objs = [], [], [], [], []
         for path in tqdm(m.shard_paths(), desc="load views", disable=not progress):
             sh = load_shard(path)

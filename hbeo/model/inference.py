@@ -32,6 +32,7 @@ from hbeo.model.augment import roll_depth
 from hbeo.conventions import Intrinsics
 from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.errors import DataError
+from hbeo.limits import MAX_ROLLS, ROLL_BATCH, check_rolls
 from hbeo.model.modelfile import ModelSettings, read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import View, to_model_view
@@ -170,11 +171,14 @@ class HBEO:
         ``rolls`` > 1 (rotation-bins models only): test-time augmentation over that many camera rolls
         about the optical axis (exact, :mod:`hbeo.model.augment`), ``rolls`` times the network's cost: the
         class probabilities and coefficients (roll-invariant) are averaged, and each roll's rotation
-        distribution is turned back and averaged before decoding.
+        distribution is turned back and averaged before decoding. The rolled images go through the
+        network :data:`hbeo.limits.ROLL_BATCH` at a time (memory does not grow with ``rolls``);
+        ``rolls`` above :data:`hbeo.limits.MAX_ROLLS` is refused (:class:`hbeo.limits.ResourceError`).
         """
         t0 = time.perf_counter()
-        if int(rolls) != rolls or rolls < 1:
+        if isinstance(rolls, bool) or int(rolls) != rolls or rolls < 1:
             raise ValueError(f"rolls must be a positive integer, got {rolls!r}")
+        rolls = check_rolls(rolls, "rolls")
         if rolls > 1 and self.net.cfg.rotation != "bins":
             raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")
         depth = np.asarray(depth)
@@ -186,25 +190,38 @@ class HBEO:
         views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s.recenter,
                                ref_distance=s.ref_distance) for d, m in zip(batch, masks)]
         warns = [self._check_view(v, i if len(views) > 1 else None) for i, v in enumerate(views)]
-        x = np.stack([v.depth for v in views])
+        x0 = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]
-        x = np.concatenate([x] + [np.stack([roll_depth(d, self.intrinsics, a) for d in x]) for a in angles[1:]])
-        x = torch.from_numpy(x[:, None]).to(PRECISIONS[self.precision]).contiguous(memory_format=torch.channels_last)
         t1 = time.perf_counter()
-        out = {k: v.float().view(rolls, len(views), -1) for k, v in self._net(x).items()}
+        net_s, prob_sum, coeff_sum, P, pose0 = 0.0, 0.0, 0.0, 0.0, None
+        step = max(1, ROLL_BATCH // len(views))        # rolls per network pass: memory bounded whatever rolls is
+        for r0 in range(0, rolls, step):
+            part = angles[r0:r0 + step]
+            x = np.concatenate([x0 if r0 + k == 0 else np.stack([roll_depth(d, self.intrinsics, a) for d in x0])
+                                for k, a in enumerate(part)])
+            x = torch.from_numpy(x[:, None]).to(PRECISIONS[self.precision]).contiguous(memory_format=torch.channels_last)
+            tn = time.perf_counter()
+            out = {k: v.float().view(len(part), len(views), -1) for k, v in self._net(x).items()}
+            net_s += time.perf_counter() - tn
+            prob_sum = prob_sum + torch.softmax(out["logits"], dim=2).sum(0)
+            coeff_sum = coeff_sum + out["coeffs"].sum(0)
+            if rolls == 1:
+                pose0 = out["pose"][0]
+            else:
+                p = torch.softmax(out["pose"].double(), dim=2)
+                P = P + sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(part))
         t2 = time.perf_counter()
-        probs = torch.softmax(out["logits"], dim=2).mean(0).numpy()
+        probs = (prob_sum / rolls).numpy()
         pose_probs = None
         if rolls == 1:
-            R_virtual = self.net.pose_matrix(out["pose"][0].double()).numpy()
+            R_virtual = self.net.pose_matrix(pose0.double()).numpy()
             if self.net.cfg.rotation == "bins":
-                pose_probs = torch.softmax(out["pose"][0].double(), dim=1).numpy()
+                pose_probs = torch.softmax(pose0.double(), dim=1).numpy()
         else:
-            p = torch.softmax(out["pose"].double(), dim=2)
-            P = sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(angles)) / rolls
+            P = P / rolls
             R_virtual = self.net.pose_matrix(torch.log(P.clamp_min(1e-300))).numpy()
             pose_probs = P.numpy()
-        out["coeffs"] = out["coeffs"].mean(0)
+        out = {"coeffs": coeff_sum / rolls}
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
         coeffs = out["coeffs"].numpy().astype(np.float64)
@@ -216,7 +233,7 @@ class HBEO:
         trans = np.stack([v.center / np.linalg.norm(v.center) * v.distance for v in views])
         labels = probs.argmax(1)
         return Prediction(probs, labels, [self.classes[i] for i in labels], R, matrix_to_axis_angle(R), trans,
-                          scale, coeffs, grids, {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
+                          scale, coeffs, grids, {"preprocess": (t2 - t0 - net_s) * 1e3, "network": net_s * 1e3,
                                                  "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3},
                           warns, np.array([bool(w) for w in warns]), pose_probs, Q)
 
@@ -252,6 +269,8 @@ class HBEO:
         cache = self._roll_perms
         key = round(angle, 12)
         if key not in cache:
+            if len(cache) >= 4 * MAX_ROLLS:             # bounded: rolls of many different counts
+                cache.clear()
             G = self.net.bin_rotations.float()
             RG = torch.from_numpy(z_angle_to_matrix(angle)).float() @ G
             cache[key] = torch.cat([bin_cosines(RG[i:i + 512], G).argmax(1) for i in range(0, len(G), 512)])

@@ -67,6 +67,7 @@ from tqdm.auto import tqdm
 
 from hbeo import __version__
 from hbeo.errors import BatchError, DataError
+from hbeo.limits import check_render
 from hbeo.rundir import RENDER_MANIFEST, failure
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
@@ -394,8 +395,8 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
     docstring for the layout); resumes an interrupted run and returns the :class:`Manifest`
     (with ``images_per_s`` of this call). Shards are rendered by a LocalCluster of ``workers``
     processes, or by the Dask cluster whose scheduler is at ``scheduler`` (``workers`` is then
-    unused); the same bytes either way. ``objects_per_shard`` defaults to about
-    :data:`IMAGES_PER_SHARD` images per shard (at least one object)."""
+    unused); the same bytes either way; too big for memory or disk: refused first (:mod:`hbeo.limits`).
+    ``objects_per_shard``: by default about :data:`IMAGES_PER_SHARD` images per shard (>= 1 object)."""
     records = list(records)
     if not records:
         raise ValueError(f"render_set: no records to render for split {split!r}")
@@ -420,6 +421,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         bad = next(r for r in records if r.cls not in dataset.classes)
         raise ValueError(f"render_set: {_record_name(bad)} has class {bad.cls!r}, not one of the "
                          f"dataset's classes") from None
+    check_render(len(records), settings.views_per_object, settings.image_size, out_dir, objects_per_shard, not scheduler and workers)
     noise = _noise_description(SensorNoise()) if settings.noise else None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
