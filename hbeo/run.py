@@ -17,7 +17,6 @@ May import: foundation, data, subspace, render, model and baselines.
 """
 from __future__ import annotations
 
-import json
 import sys
 import warnings
 from dataclasses import dataclass, replace
@@ -32,7 +31,7 @@ from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.render.views import RenderSettings, check_grid_records
 from hbeo.rundir import RunDir, failure_summary
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, json_text
 from hbeo.subspace.basis import ObjectSubspace
 
 #: Fraction of each class's variance the run's subspace keeps (the paper's 60 %).
@@ -182,7 +181,7 @@ class Run:
                    "variance_used": sub.variance_used_, "n_components": sub.n_components_, "known_fraction": known,
                    "seed": seed, "method": method,
                    "errors": {m: r.round(6).to_dict(orient="index") for m, r in rows.items()}}
-        atomic_text(run.subspace_summary, json.dumps(summary, indent=2))
+        atomic_text(run.subspace_summary, json_text(summary, indent=2))
         return "\n".join([
             f"\nper-class components (variance fraction {sub.variance_used_}; paper: 30-70 per class at 0.6):",
             counts.to_string(), f"shared dimension: {sub.dim_} (paper: 344)   -> {run.subspace}",
@@ -286,7 +285,7 @@ class Run:
                     "resumed_from_step": resumed, "n_params": model.net.n_params()}
             if opts.changed():
                 info["options"] = opts.changed()
-            atomic_text(self.dir.training_provenance(path), json.dumps(info, indent=1))
+            atomic_text(self.dir.training_provenance(path), json_text(info, indent=1))
         return Trained(model, path, resumed)
 
     def model(self, progress: bool = True):

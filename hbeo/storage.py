@@ -21,9 +21,11 @@ Imports nothing from the rest of the package but :mod:`hbeo.errors` and :mod:`hb
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
+import math
 import os
 import re
 import tempfile
@@ -66,7 +68,12 @@ def atomic_file(path, mode: str = "wb", **kw):
     0666 less the umask (``mkstemp`` creates it 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:     # the temporary's name would hide the real problem (e.g. /proc: ENOENT)
+        if err.errno == errno.ENOENT and path.parent.is_dir():
+            raise OSError(errno.EACCES, f"cannot create a file in the folder {path.parent}", str(path)) from None
+        raise OSError(err.errno, err.strerror, str(path)) from None
     try:
         with os.fdopen(fd, mode, **kw) as f:
             os.fchmod(f.fileno(), 0o666 & ~current_umask())
@@ -77,6 +84,27 @@ def atomic_file(path, mode: str = "wb", **kw):
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def finite_json(obj):
+    """``obj`` with every non-finite float (NaN, inf) replaced by None, in nested dicts, lists and tuples:
+    the rule for every JSON file hbeo writes (a number that does not exist is ``null``, never ``NaN``)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    return obj
+
+
+def json_text(obj, **kw) -> str:
+    """Strict JSON text of ``obj`` (``json.dumps`` keywords ``kw``): non-finite floats become ``null``
+    (:func:`finite_json`); anything else JSON cannot hold is an error, never an invalid file."""
+    if kw.get("default") is not None:
+        default = kw["default"]
+        kw["default"] = lambda o: finite_json(default(o))
+    return json.dumps(finite_json(obj), allow_nan=False, **kw)
 
 
 def atomic_text(path, text: str) -> None:

@@ -31,7 +31,7 @@ import numpy as np
 
 from hbeo import config
 from hbeo.rundir import RunDir
-from hbeo.storage import append_csv, atomic_text, sha256_file, tree_digest
+from hbeo.storage import append_csv, atomic_text, json_text, sha256_file, tree_digest
 
 SEED = 0
 #: HBEO with the extensions chosen on validation (issue 16): test-time roll averaging (bins models) and
@@ -131,7 +131,7 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
     if verified:
         m["method"] = VERIFIED
     m["request"] = request(run, method, pose)
-    atomic_text(path, json.dumps(m, indent=1))
+    atomic_text(path, json_text(m, indent=1))
     return m
 
 
@@ -217,7 +217,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
                              per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
     metrics["model"] = str(model_path)
     with atomic_file(out, "w") as f:
-        json.dump(metrics, f, indent=2)
+        f.write(json_text(metrics, indent=2))
     if split == "val":
         record_validation(folder, model_path, model, metrics)
     record_failures(folder, "evaluate", metrics["failures"], metrics["n_objects"] + len(metrics["failures"]), [split])

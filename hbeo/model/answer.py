@@ -13,7 +13,6 @@ May import: foundation, data, subspace, render, and the other hbeo.model modules
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -125,7 +124,7 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     from contextlib import ExitStack
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.model.inference import HBEO
-    from hbeo.storage import atomic_file, check_outputs
+    from hbeo.storage import atomic_file, check_outputs, json_text
     if out is not None:
         check_outputs({"--out": out, "--mesh": mesh_path}, {"--depth": depth_path, "--mask": mask_path,
                                                             "--model": model_path})
@@ -134,6 +133,8 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     depth = read_depth(depth_path, depth_scale)
     K = parse_intrinsics(intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(mask_path, depth.shape) if mask_path else None
+    if mask is not None and not (mask & (depth > 0)).any():
+        raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
     model = HBEO.load(model_path, precision=precision)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
@@ -146,7 +147,7 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
         data = data.encode() if isinstance(data, str) else data
     if out is not None:
         with ExitStack() as files:
-            files.enter_context(atomic_file(out, "w")).write(json.dumps(answer.to_json(), indent=2))
+            files.enter_context(atomic_file(out, "w")).write(json_text(answer.to_json(), indent=2))
             if data is not None:
                 files.enter_context(atomic_file(mesh_path)).write(data)
     return answer
