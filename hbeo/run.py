@@ -53,6 +53,34 @@ def load_dataset(name: str, prof, **kw):
     return ds
 
 
+def baseline_inputs(folder, method: str, model, dataset, dataset_name: str, progress: bool = True) -> None:
+    """Make what :func:`hbeo.baselines.methods.load_method` needs to fit or train baseline ``method`` in the
+    run folder ``folder`` of the HBEO model ``model`` (a loaded :class:`~hbeo.model.inference.HBEO`), when
+    the baseline's file is missing: the run's grid sets (built from ``dataset``, a loaded Dataset named
+    ``dataset_name`` on the command line, with the model's profile; progress bar), and for ``beo`` the
+    subspace (the model's own basis, written as ``subspace.npz``). What takes a long job (``voxcnn``'s
+    rendered training set) is not started here: HBEOError naming the command that makes it."""
+    run = RunDir.of(folder)
+    if method == "hbeo" or run.baseline(method).exists():
+        return
+    prof = config.get_profile(model.settings.profile or "cpu")
+    if list(dataset.classes) != list(model.classes):
+        raise HBEOError(f"{run.baseline(method)}: missing, and --dataset {dataset_name} is not the model's dataset "
+                        f"(classes {', '.join(dataset.classes)} vs the model's {', '.join(model.classes)}), so it "
+                        f"cannot be fitted from it; evaluate on the model's dataset first")
+    if method == "voxcnn" and not run.render_manifest("train").is_file():
+        raise HBEOError(f"{run.baseline(method)}: missing, and the 3-D CNN trains on the run's rendered training "
+                        f"set, which is not there; make it with: python -m hbeo render --profile {prof.name} "
+                        f"--dataset {dataset_name} --out {run.path}")
+    if not run.grids("train").exists():
+        print(f"[hbeo] {run.grids('train')} missing: building the run's grid sets from {dataset_name} "
+              f"(as python -m hbeo voxelize does)", file=sys.stderr, flush=True)
+        run_gridsets(run, dataset, prof, progress=progress)
+    if method == "beo" and not run.subspace.exists():
+        print(f"[hbeo] {run.subspace} missing: writing the model's basis there", file=sys.stderr, flush=True)
+        model.subspace.save(run.subspace)
+
+
 def record_failures(run, step: str, failures: list, total: int, splits) -> list:
     """A batch's end: its bad items written to ``run``'s failures.json (replacing that step's old ones)
     and printed to stderr. Returns ``failures``."""

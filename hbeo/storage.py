@@ -63,7 +63,8 @@ def current_umask() -> int:
 @contextmanager
 def atomic_file(path, mode: str = "wb", **kw):
     """Open a temporary file beside ``path``; on a clean exit it is renamed onto ``path``
-    (atomic on one file system) after its bytes reach the disk; on an error it is removed.
+    (atomic on one file system) after its bytes reach the disk; on an error it is removed, and an
+    OSError that names no file (a full disk) or the temporary names ``path`` instead.
     Parent folders are created. The file gets the mode a plain ``open`` would give a new file,
     0666 less the umask (``mkstemp`` creates it 0600)."""
     path = Path(path)
@@ -81,6 +82,11 @@ def atomic_file(path, mode: str = "wb", **kw):
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as err:          # e.g. ENOSPC from a write names no file, or names the temporary
+        Path(tmp).unlink(missing_ok=True)
+        if err.filename in (None, tmp):
+            raise OSError(err.errno, err.strerror, str(path)) from err
+        raise
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -295,7 +301,9 @@ def check_outputs(outputs: dict, inputs: dict | None = None) -> None:
         if not parent.is_dir():
             raise DataError(path, f"{opt}: {parent} is not a folder")
         if not os.access(parent, os.W_OK | os.X_OK):
-            raise DataError(path, f"{opt}: no permission to write in folder {parent}")
+            ro = hasattr(os, "statvfs") and os.statvfs(parent).f_flag & os.ST_RDONLY
+            raise DataError(path, f"{opt}: folder {parent} is on a read-only file system" if ro
+                            else f"{opt}: no permission to write in folder {parent}")
         for other, p in ins + outs[:i]:
             if same(path, p):
                 raise DataError(path, f"{opt} is the same file as {other}; it would be overwritten")

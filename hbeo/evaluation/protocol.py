@@ -204,7 +204,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.model.inference import HBEO
-    from hbeo.run import load_dataset, record_failures
+    from hbeo.run import baseline_inputs, load_dataset, record_failures
     from hbeo.storage import atomic_file, check_outputs
     check_outputs({"--out": out}, {"--model": model_path})
     pose = check_method(method, pose)
@@ -212,6 +212,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     folder = RunDir(Path(model_path).parent)
     profile = model.settings.profile or "cpu"
     ds = load_dataset(dataset, profile)
+    baseline_inputs(folder, method, model, ds, dataset, progress=progress)     # grids, basis: built if missing
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
                              per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
