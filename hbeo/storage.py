@@ -66,29 +66,56 @@ def atomic_file(path, mode: str = "wb", **kw):
     (atomic on one file system) after its bytes reach the disk; on an error it is removed, and an
     OSError that names no file (a full disk) or the temporary names ``path`` instead.
     Parent folders are created. The file gets the mode a plain ``open`` would give a new file,
-    0666 less the umask (``mkstemp`` creates it 0600)."""
-    path = Path(path)
+    0666 less the umask (``mkstemp`` creates it 0600). Several files at once: :func:`atomic_files`."""
+    with atomic_files([(path, mode)], **kw) as (f,):
+        yield f
+
+
+def _temporary(path: Path) -> tuple[int, str]:
+    """``mkstemp`` beside ``path``; its OSError names ``path`` (the temporary's name would hide the real
+    problem: in ``/proc`` it is ENOENT for a folder that exists)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as err:     # the temporary's name would hide the real problem (e.g. /proc: ENOENT)
+        return tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:
         if err.errno == errno.ENOENT and path.parent.is_dir():
             raise OSError(errno.EACCES, f"cannot create a file in the folder {path.parent}", str(path)) from None
         raise OSError(err.errno, err.strerror, str(path)) from None
+
+
+@contextmanager
+def atomic_files(specs, **kw):
+    """Write several files together, each as :func:`atomic_file` does: ``specs`` is ``[(path, mode), ...]``
+    and the files are yielded in that order. On a clean exit every file reaches the disk before any is
+    renamed into place, so a failure (a full disk) leaves all of them as they were, and no temporary."""
+    made: list = []                     # (temporary, path, file)
+    current = None                      # the path an OSError without a file name is about
     try:
-        with os.fdopen(fd, mode, **kw) as f:
+        for path, mode in specs:
+            current = Path(path)
+            fd, tmp = _temporary(current)
+            made.append((tmp, current, None))
+            f = os.fdopen(fd, mode, **kw)
+            made[-1] = (tmp, current, f)
             os.fchmod(f.fileno(), 0o666 & ~current_umask())
-            yield f
+        current = made[0][1] if made else None
+        yield [f for _, _, f in made]
+        for _, current, f in made:
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as err:          # e.g. ENOSPC from a write names no file, or names the temporary
-        Path(tmp).unlink(missing_ok=True)
-        if err.filename in (None, tmp):
-            raise OSError(err.errno, err.strerror, str(path)) from err
-        raise
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+            f.close()
+        for tmp, current, _ in made:
+            os.replace(tmp, current)
+    except BaseException as err:
+        for tmp, _, f in made:
+            if f is not None:
+                try:
+                    f.close()
+                except OSError:
+                    pass
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(err, OSError) and current is not None and err.filename in (None, *(t for t, _, _ in made)):
+            raise OSError(err.errno, err.strerror, str(current)) from err
         raise
 
 
