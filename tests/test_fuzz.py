@@ -693,3 +693,21 @@ def test_negative_intrinsics_reach_the_intrinsics_check(predict_folder, tmp_path
     argv = [a for a in predict_folder if not a.startswith("--intrinsics")]
     line = cli_error(argv + ["--intrinsics", "-262,262,16,12", "--out", str(tmp_path / "r.json")])
     assert line.startswith("intrinsics '-262,262,16,12': "), line
+
+
+def test_every_method_from_a_run_folder_holding_only_the_model(ci_model, tmp_path, monkeypatch, capsys):
+    """evaluate --method beo on a folder with nothing but model.hbeo (as the committed reference run):
+    the run's grid sets and BEO's basis are built there, then BEO is fitted; voxcnn, whose rendered
+    training set takes a long job, names the command that makes it."""
+    import shutil
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy2(ci_model, run / "model.hbeo")
+    monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
+    common = ["evaluate", "--model", str(run / "model.hbeo"), "--dataset", "procedural", "--per-class", "1", "--quiet"]
+    line = cli_error(common + ["--method", "voxcnn", "--pose", "known", "--out", str(tmp_path / "v.json")])
+    assert line.startswith(f"{run / 'voxcnn.hbeo'}: missing") and "python -m hbeo render --profile ci" in line, line
+    assert main(common + ["--method", "beo", "--pose", "known", "--out", str(tmp_path / "b.json")]) == 0
+    assert {"grids_train.npz", "grids_test.npz", "subspace.npz", "beo.npz"} <= {p.name for p in run.iterdir()}
+    import json
+    assert json.loads((tmp_path / "b.json").read_text())["method"] == "beo"
