@@ -224,6 +224,7 @@ def cmd_report(args) -> int:
         path = model_table.write_model_table(args.run, args.readme)
         print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
         return 0
+    md.check_finished_run(args.run)               # a folder that is not a finished run: one line, exit 2
     path = md.write_reproduction(args.run, args.out)
     print(f"wrote {path}" + (f" and the summary block of {md.write_summary(args.run, args.readme)}" if args.readme else ""))
     return 0

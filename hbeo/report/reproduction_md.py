@@ -234,10 +234,9 @@ def check_finished_run(run) -> RunDir:
 
 def write_reproduction(run, out=None) -> Path:
     """The run's ``REPRODUCTION.md`` (or ``out``, e.g. ``paper/REPRODUCTION.md``) from a finished run folder
-    (a RunDir or a path; :func:`check_finished_run`): the text of :func:`reproduction_text`, written
-    atomically. Returns the path written."""
-    run = check_finished_run(run)
-    out = Path(out) if out else run.path / "REPRODUCTION.md"
+    (a RunDir or a path; ``python -m hbeo report`` checks it first, :func:`check_finished_run`): the text of
+    :func:`reproduction_text`, written atomically. Returns the path written."""
+    out = Path(out) if out else RunDir.of(run).path / "REPRODUCTION.md"
     atomic_text(out, reproduction_text(run, out))
     return out
 
@@ -397,7 +396,6 @@ README_BLOCKS = ((SUMMARY_BEGIN, SUMMARY_END, summary), (SUBSPACE_BEGIN, SUBSPAC
 def write_summary(run, readme) -> Path:
     """Replace each of :data:`README_BLOCKS` that the README has with what the run's files give."""
     from hbeo.report.model_table import replace_block
-    run = check_finished_run(run)
     readme = Path(readme)
     text = readme.read_text()
     for begin, end, fn in README_BLOCKS:
