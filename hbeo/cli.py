@@ -4,8 +4,13 @@ package function (mostly a stage of :class:`hbeo.run.Run`). Bad input exits 2 wi
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import math
+import os
 import sys
+import traceback
+from pathlib import Path
 
 from hbeo.errors import HBEOError
 from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
@@ -13,6 +18,103 @@ from hbeo.rundir import DEFAULT_MODEL
 
 #: the --sampler help: the readings of the view protocol (hbeo.render.poses)
 _SAMPLER_HELP = "; ".join(f"{k}: {v}" for k, v in SAMPLER_HELP.items()).replace("%", "%%")
+
+
+# --------------------------------------------------------------------------- refusing what means nothing
+
+def _number(kind, lo=None, hi=None, lo_open=False, hi_open=False):
+    """An argparse ``type=``: ``kind`` (int or float) finite and in [lo, hi] (open ends where asked); the
+    error (argparse puts the option's name before it) says what it takes and what it got."""
+    name = "a whole number" if kind is int else "a number"
+    rng = " and ".join(x for x in (lo is not None and f"{'>' if lo_open else '>='} {lo}",
+                                   hi is not None and f"{'<' if hi_open else '<='} {hi}") if x)
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            v = None
+        ok = v is not None and math.isfinite(v) and (lo is None or (v > lo if lo_open else v >= lo)) \
+            and (hi is None or (v < hi if hi_open else v <= hi))
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected {name}{' ' + rng if rng else ''}, got {text!r}")
+        return v
+    parse.__name__ = name
+    return parse
+
+
+COUNT = _number(int, 1)                             #: epochs, views, rolls, steps, objects: at least one
+NONNEG = _number(int, 0)                            #: workers, seeds
+POSITIVE = _number(float, 0, lo_open=True)          #: distances, scales
+FRACTION = _number(float, 0, 1, lo_open=True)       #: (0, 1]
+OPEN_FRACTION = _number(float, 0, 1, True, True)    #: (0, 1)
+#: options whose value may start with "-" (a list of numbers): joined to it before parsing, so a
+#: negative first number reaches the option's own check instead of argparse's usage text
+_LIST_OPTIONS = ("--intrinsics", "--loss-weights", "--verify-set")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors as one line, ``error: OPTION: problem (see ... --help)``, exit 2."""
+
+    def error(self, message):
+        print(f"error: {message.removeprefix('argument ')} (see {self.prog} --help)", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _join_list_values(argv: list[str]) -> list[str]:
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] in _LIST_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
+# --------------------------------------------------------------------------- the one error boundary
+
+#: what an operating-system error means, in words
+_OS_WORDS = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
+             errno.EACCES: "permission denied", errno.EPERM: "operation not permitted",
+             errno.ENOTDIR: "not a folder", errno.EISDIR: "is a folder, not a file",
+             errno.ENOENT: "no such file or folder", errno.EEXIST: "already exists",
+             errno.EDQUOT: "disk quota exceeded", errno.ENAMETOOLONG: "file name too long",
+             errno.EIO: "input/output error (a failing disk or a lost network drive?)",
+             errno.EMFILE: "too many open files", errno.EXDEV: "cannot move across file systems",
+             errno.ENOTEMPTY: "folder not empty", errno.ELOOP: "too many symbolic links"}
+_PATH_SETTINGS = ("HBEO_RESULTS", "HBEO_CACHE", "HBEO_DATA")
+
+
+def _os_error_line(err: OSError) -> str:
+    """``PATH: what happened`` for an operating-system error (the file in the way for ENOTDIR, and the
+    setting that pointed there)."""
+    path = err.filename
+    own = err.strerror if (err.strerror or "").startswith("cannot ") else None     # atomic_file's own words
+    words = own or _OS_WORDS.get(err.errno) or (err.strerror or str(err)).lower()
+    if path is None:
+        return words
+    path = os.fsdecode(path)
+    if err.errno == errno.ENOTDIR:              # name the file that stands where a folder must be
+        for parent in [Path(path), *Path(path).parents]:
+            if parent.exists():
+                if not parent.is_dir():
+                    words, path = "not a folder (a file is in the way)", str(parent)
+                break
+    for name in _PATH_SETTINGS:
+        value = os.environ.get(name)
+        if value and (path == value or path.startswith(value.rstrip("/") + "/")):
+            words += f" (set by {name})"
+            break
+    return f"{path}: {words}"
+
+
+def _bug(err: BaseException) -> int:
+    traceback.print_exc()
+    print(f"error: unexpected {type(err).__name__}: this is a bug in hbeo; please report it with the command and "
+          "the traceback above on the project's issue tracker (README, 'Bad input')", file=sys.stderr)
+    return 1
 
 
 def _dataset_arg(p, profile="cpu"):
@@ -126,6 +228,7 @@ def cmd_report(args) -> int:
         path = model_table.write_model_table(args.run, args.readme)
         print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
         return 0
+    md.check_finished_run(args.run)               # a folder that is not a finished run: one line, exit 2
     path = md.write_reproduction(args.run, args.out)
     print(f"wrote {path}" + (f" and the summary block of {md.write_summary(args.run, args.readme)}" if args.readme else ""))
     return 0
@@ -133,10 +236,7 @@ def cmd_report(args) -> int:
 
 def cmd_book(args) -> int:
     from hbeo.report.book import build_book
-    try:
-        index = build_book(args.run, args.out)
-    except OSError as err:                  # an unwritable output folder, too: one line, exit 2
-        raise HBEOError(str(err)) from None
+    index = build_book(args.run, args.out)        # an unwritable output folder: main's OSError line, exit 2
     print(f"[hbeo] book: {index}")
     return 0
 
@@ -148,7 +248,7 @@ def _command(sub, func, name: str, **kw) -> argparse.ArgumentParser:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m hbeo",
+    ap = _Parser(prog="python -m hbeo",
                                  description="Hybrid Bayesian Eigenobjects: data, voxelization, reproduction.")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
     p = _command(sub, cmd_data, "data", help="list a dataset (class counts) or download ModelNet10")
@@ -160,50 +260,50 @@ def build_parser() -> argparse.ArgumentParser:
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET), or FILE.npz: every object "
                                  "in one file of the published modelnet10_vox30.npz layout")
-    p.add_argument("--workers", type=int, default=0, help="processes (default: the profile's)")
+    p.add_argument("--workers", type=NONNEG, default=0, help="processes (default: the profile's)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 2 if any object fails (default: skip it, list it in failures.json)")
     p = _command(sub, cmd_subspace, "subspace", help="fit the shared VBPCA subspace; print components and completion errors")
     _dataset_arg(p, profile="full")
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--variance", type=float, default=0.6, help="variance fraction per class (default 0.6, the paper's)")
-    g.add_argument("--shared-dim", type=int, help="choose one variance fraction giving this shared dimension (paper: 344)")
-    g.add_argument("--components", type=int, help="fixed component count per class")
+    g.add_argument("--variance", type=FRACTION, default=0.6, help="variance fraction per class (default 0.6, the paper's)")
+    g.add_argument("--shared-dim", type=COUNT, help="choose one variance fraction giving this shared dimension (paper: 344)")
+    g.add_argument("--components", type=COUNT, help="fixed component count per class")
     p.add_argument("--method", choices=("lstsq", "lasso"), default="lstsq", help="partial projection solver")
-    p.add_argument("--known", type=float, default=0.5, help="fraction of voxels known in the partial test (0.5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random mask")
+    p.add_argument("--known", type=OPEN_FRACTION, default=0.5, help="fraction of voxels known in the partial test (0.5)")
+    p.add_argument("--seed", type=NONNEG, default=0, help="seed of the random mask")
     p = _command(sub, cmd_render, "render", help="render segmented depth images with pose/class/shape labels (resumable)")
     _dataset_arg(p)
     p.add_argument("--out", help="output folder; sets go to OUT/render_SPLIT (default: results/PROFILE-DATASET)")
     p.add_argument("--split", choices=("train", "test", "both"), default="train", help="split(s) to render (train)")
-    p.add_argument("--views", type=int, help="views per object (default: the profile's)")
+    p.add_argument("--views", type=COUNT, help="views per object (default: the profile's)")
     p.add_argument("--sampler", choices=SAMPLERS, default="so3", help=_SAMPLER_HELP)
     p.add_argument("--noise", action="store_true", help="apply the Kinect-like sensor noise model")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--workers", type=NONNEG, default=0,
                    help="processes of the local Dask cluster (default: the profile's; unused with --scheduler)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="render on the running Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of a "
                         "local cluster; its workers must see --out at the same path and run the same hbeo")
     p.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"), default="auto",
                    help="renderer (auto); torch: ray-march each object's grid (grid datasets only)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the viewpoints and noise (0)")
+    p.add_argument("--seed", type=NONNEG, default=0, help="seed of the viewpoints and noise (0)")
     p.add_argument("--subspace", help="subspace.npz for shape coefficients (default: OUT/subspace.npz if present)")
-    p.add_argument("--objects-per-shard", type=int, help="objects per shard file (default: about 1024 images per shard)")
+    p.add_argument("--objects-per-shard", type=COUNT, help="objects per shard file (default: about 1024 images per shard)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 2 if any object fails (default: skip it, list it in failures.json)")
     p = _command(sub, cmd_train, "train", help="train HBEONet (builds grids, subspace and renderings if missing)")
     _dataset_arg(p)
     p.add_argument("--out", help="run folder (default: results/PROFILE-DATASET)")
-    p.add_argument("--epochs", type=int, help="epochs (default: the profile's)")
-    p.add_argument("--max-steps", type=int, help="stop after this many optimizer steps (the schedule ends there)")
-    p.add_argument("--checkpoint-every", type=int, metavar="N",
+    p.add_argument("--epochs", type=COUNT, help="epochs (default: the profile's)")
+    p.add_argument("--max-steps", type=COUNT, help="stop after this many optimizer steps (the schedule ends there)")
+    p.add_argument("--checkpoint-every", type=COUNT, metavar="N",
                    help="also write the checkpoint every N steps (default: after every epoch only); a killed run "
                         "resumes from it")
-    p.add_argument("--loader-workers", type=int, default=0, metavar="N",
+    p.add_argument("--loader-workers", type=NONNEG, default=0, metavar="N",
                    help="worker processes that prepare batches while the network trains (default 0: none)")
-    p.add_argument("--views", type=int, help="rendered views per training object (default: the profile's)")
+    p.add_argument("--views", type=COUNT, help="rendered views per training object (default: the profile's)")
     p.add_argument("--data", choices=("memory", "shards", "stream"),
                    help="training images: the rendered set in memory, the rendered set read shard by shard, or "
                         "rendered on the fly with a fresh pose per object per pass (default: the profile's)")
@@ -225,20 +325,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="roll each training view by a random angle about the optical axis every epoch (exact; "
                         "default: the profile's recipe)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
-    p.add_argument("--ref-distance", type=float, help="distance-insensitive input: zoom to this object distance (m)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ref-distance", type=POSITIVE, help="distance-insensitive input: zoom to this object distance (m)")
+    p.add_argument("--seed", type=NONNEG, default=0)
     p.add_argument("--name", default=DEFAULT_MODEL, help=f"model file name in the run folder ({DEFAULT_MODEL})")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p = _command(sub, cmd_predict, "predict", help="class, pose and completed shape from one depth image")
     p.add_argument("--model", required=True, help="model file (model.hbeo)")
     p.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
                    help="network arithmetic (bfloat16: faster on CPUs with AVX512-BF16, ~99%% class agreement)")
-    p.add_argument("--rolls", type=int, default=1,
+    p.add_argument("--rolls", type=COUNT, default=1,
                    help="average over this many camera rolls (rotation-bins models; N network passes; 1 = off)")
     p.add_argument("--depth", required=True, help="depth image: 16-bit PNG in mm, or float .npy/.tiff in m")
     p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels")
     p.add_argument("--mask", help="object mask image (non-zero = object), same size as the depth")
-    p.add_argument("--depth-scale", type=float, help="metres per stored unit (default 0.001 for integer images)")
+    p.add_argument("--depth-scale", type=POSITIVE, help="metres per stored unit (default 0.001 for integer images)")
     p.add_argument("--out", required=True, help="result JSON")
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
     _add_verify(p)
@@ -247,11 +347,11 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "every method; baselines live beside it)")
     p.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
                    help="HBEO's network arithmetic (default float32)")
-    p.add_argument("--rolls", type=int, default=1,
+    p.add_argument("--rolls", type=COUNT, default=1,
                    help="HBEO test-time augmentation: average over this many camera rolls (bins models; 1 = off)")
     p.add_argument("--method", choices=("hbeo", "beo", "icp", "voxcnn"), default="hbeo",
                    help="hbeo (default), beo, icp or voxcnn (fitted/trained in the model's folder if missing)")
-    p.add_argument("--max-steps", type=int,
+    p.add_argument("--max-steps", type=COUNT,
                    help="voxcnn: when it must be trained first, stop after this many optimizer steps")
     _add_verify(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
@@ -260,12 +360,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", choices=("train", "test", "val"), default="test",
                    help="test (default); val: the training objects that training held out, where choices are made "
                         "(each evaluation is added to validation.csv beside the model)")
-    p.add_argument("--views", type=int, default=1, help="views per object (1)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--views", type=COUNT, default=1, help="views per object (1)")
+    p.add_argument("--seed", type=NONNEG, default=0)
     p.add_argument("--sampler", choices=SAMPLERS,
                    help="viewpoints (default: the model's training sampler); " + _SAMPLER_HELP)
     p.add_argument("--noise", action="store_true", help="apply Kinect-like sensor noise")
-    p.add_argument("--per-class", type=int, help="at most this many objects per class")
+    p.add_argument("--per-class", type=COUNT, help="at most this many objects per class")
     p.add_argument("--strict", action="store_true",
                    help="exit 2 when any object could not be evaluated (default: report it, score the rest)")
     p.add_argument("--out", required=True, help="metrics JSON (keys: see hbeo/evaluate.py)")
@@ -294,13 +394,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Parse ``argv`` and run the subcommand. The one error boundary: hbeo's errors, ValueErrors and
+    operating-system errors (``PATH: what happened``) are one line ``error: ...`` and exit 2; anything
+    else is a bug: its traceback, a line saying so, exit 1."""
     ap = build_parser()
-    args = ap.parse_args(argv)
+    args = ap.parse_args(_join_list_values(list(sys.argv[1:] if argv is None else argv)))
     if not getattr(args, "func", None):
         ap.print_help()
         return 0
     try:
         return args.func(args)
-    except (HBEOError, ValueError, FileNotFoundError) as err:
+    except (HBEOError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:
+        print(f"error: {_os_error_line(err)}", file=sys.stderr)
+        return 2
+    except Exception as err:                # noqa: BLE001 - anything else is a bug, said so once
+        return _bug(err)

@@ -17,7 +17,6 @@ May import: foundation, data, subspace, render, model and baselines.
 """
 from __future__ import annotations
 
-import json
 import sys
 import warnings
 from dataclasses import dataclass, replace
@@ -33,7 +32,7 @@ from hbeo.render.renderset import Manifest, render_set
 from hbeo.limits import check_in_memory, check_workers
 from hbeo.render.views import RenderSettings, check_grid_records
 from hbeo.rundir import RunDir, failure_summary
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, json_text
 from hbeo.subspace.basis import ObjectSubspace
 
 #: Fraction of each class's variance the run's subspace keeps (the paper's 60 %).
@@ -53,6 +52,34 @@ def load_dataset(name: str, prof, **kw):
         print(f"warning: {w.message}", file=sys.stderr)
     warnings.filterwarnings("ignore", message=r".*skipped \d+ empty grids")
     return ds
+
+
+def baseline_inputs(folder, method: str, model, dataset, dataset_name: str, progress: bool = True) -> None:
+    """Make what :func:`hbeo.baselines.methods.load_method` needs to fit or train baseline ``method`` in the
+    run folder ``folder`` of the HBEO model ``model`` (a loaded :class:`~hbeo.model.inference.HBEO`), when
+    the baseline's file is missing: the run's grid sets (built from ``dataset``, a loaded Dataset named
+    ``dataset_name`` on the command line, with the model's profile; progress bar), and for ``beo`` the
+    subspace (the model's own basis, written as ``subspace.npz``). What takes a long job (``voxcnn``'s
+    rendered training set) is not started here: HBEOError naming the command that makes it."""
+    run = RunDir.of(folder)
+    if method == "hbeo" or run.baseline(method).exists():
+        return
+    prof = config.get_profile(model.settings.profile or "cpu")
+    if list(dataset.classes) != list(model.classes):
+        raise HBEOError(f"{run.baseline(method)}: missing, and --dataset {dataset_name} is not the model's dataset "
+                        f"(classes {', '.join(dataset.classes)} vs the model's {', '.join(model.classes)}), so it "
+                        f"cannot be fitted from it; evaluate on the model's dataset first")
+    if method == "voxcnn" and not run.render_manifest("train").is_file():
+        raise HBEOError(f"{run.baseline(method)}: missing, and the 3-D CNN trains on the run's rendered training "
+                        f"set, which is not there; make it with: python -m hbeo render --profile {prof.name} "
+                        f"--dataset {dataset_name} --out {run.path}")
+    if not run.grids("train").exists():
+        print(f"[hbeo] {run.grids('train')} missing: building the run's grid sets from {dataset_name} "
+              f"(as python -m hbeo voxelize does)", file=sys.stderr, flush=True)
+        run_gridsets(run, dataset, prof, progress=progress)
+    if method == "beo" and not run.subspace.exists():
+        print(f"[hbeo] {run.subspace} missing: writing the model's basis there", file=sys.stderr, flush=True)
+        model.subspace.save(run.subspace)
 
 
 def record_failures(run, step: str, failures: list, total: int, splits) -> list:
@@ -183,7 +210,7 @@ class Run:
                    "variance_used": sub.variance_used_, "n_components": sub.n_components_, "known_fraction": known,
                    "seed": seed, "method": method,
                    "errors": {m: r.round(6).to_dict(orient="index") for m, r in rows.items()}}
-        atomic_text(run.subspace_summary, json.dumps(summary, indent=2))
+        atomic_text(run.subspace_summary, json_text(summary, indent=2))
         return "\n".join([
             f"\nper-class components (variance fraction {sub.variance_used_}; paper: 30-70 per class at 0.6):",
             counts.to_string(), f"shared dimension: {sub.dim_} (paper: 344)   -> {run.subspace}",
@@ -292,7 +319,7 @@ class Run:
                     "resumed_from_step": resumed, "n_params": model.net.n_params()}
             if opts.changed():
                 info["options"] = opts.changed()
-            atomic_text(self.dir.training_provenance(path), json.dumps(info, indent=1))
+            atomic_text(self.dir.training_provenance(path), json_text(info, indent=1))
         return Trained(model, path, resumed)
 
     def model(self, progress: bool = True):

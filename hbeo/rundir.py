@@ -43,7 +43,7 @@ import re
 from pathlib import Path
 
 from hbeo import config
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, json_text
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -280,7 +280,7 @@ class RunDir:
                 if f.get("step") != step or (splits is not None and f.get("split") not in splits)]
         data = keep + [dict(f, step=step) for f in failures]
         if data:
-            atomic_text(self.failures, json.dumps(data, indent=1))
+            atomic_text(self.failures, json_text(data, indent=1))
         else:
             self.failures.unlink(missing_ok=True)
         return self.failures

@@ -21,9 +21,11 @@ Imports nothing from the rest of the package but :mod:`hbeo.errors` and :mod:`hb
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
+import math
 import os
 import re
 import tempfile
@@ -61,22 +63,81 @@ def current_umask() -> int:
 @contextmanager
 def atomic_file(path, mode: str = "wb", **kw):
     """Open a temporary file beside ``path``; on a clean exit it is renamed onto ``path``
-    (atomic on one file system) after its bytes reach the disk; on an error it is removed.
+    (atomic on one file system) after its bytes reach the disk; on an error it is removed, and an
+    OSError that names no file (a full disk) or the temporary names ``path`` instead.
     Parent folders are created. The file gets the mode a plain ``open`` would give a new file,
-    0666 less the umask (``mkstemp`` creates it 0600)."""
-    path = Path(path)
+    0666 less the umask (``mkstemp`` creates it 0600). Several files at once: :func:`atomic_files`."""
+    with atomic_files([(path, mode)], **kw) as (f,):
+        yield f
+
+
+def _temporary(path: Path) -> tuple[int, str]:
+    """``mkstemp`` beside ``path``; its OSError names ``path`` (the temporary's name would hide the real
+    problem: in ``/proc`` it is ENOENT for a folder that exists)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, mode, **kw) as f:
+        return tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:
+        if err.errno == errno.ENOENT and path.parent.is_dir():
+            raise OSError(errno.EACCES, f"cannot create a file in the folder {path.parent}", str(path)) from None
+        raise OSError(err.errno, err.strerror, str(path)) from None
+
+
+@contextmanager
+def atomic_files(specs, **kw):
+    """Write several files together, each as :func:`atomic_file` does: ``specs`` is ``[(path, mode), ...]``
+    and the files are yielded in that order. On a clean exit every file reaches the disk before any is
+    renamed into place, so a failure (a full disk) leaves all of them as they were, and no temporary."""
+    made: list = []                     # (temporary, path, file)
+    current = None                      # the path an OSError without a file name is about
+    try:
+        for path, mode in specs:
+            current = Path(path)
+            fd, tmp = _temporary(current)
+            made.append((tmp, current, None))
+            f = os.fdopen(fd, mode, **kw)
+            made[-1] = (tmp, current, f)
             os.fchmod(f.fileno(), 0o666 & ~current_umask())
-            yield f
+        current = made[0][1] if made else None
+        yield [f for _, _, f in made]
+        for _, current, f in made:
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+            f.close()
+        for tmp, current, _ in made:
+            os.replace(tmp, current)
+    except BaseException as err:
+        for tmp, _, f in made:
+            if f is not None:
+                try:
+                    f.close()
+                except OSError:
+                    pass
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(err, OSError) and current is not None and err.filename in (None, *(t for t, _, _ in made)):
+            raise OSError(err.errno, err.strerror, str(current)) from err
         raise
+
+
+def finite_json(obj):
+    """``obj`` with every non-finite float (NaN, inf) replaced by None, in nested dicts, lists and tuples:
+    the rule for every JSON file hbeo writes (a number that does not exist is ``null``, never ``NaN``)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    return obj
+
+
+def json_text(obj, **kw) -> str:
+    """Strict JSON text of ``obj`` (``json.dumps`` keywords ``kw``): non-finite floats become ``null``
+    (:func:`finite_json`); anything else JSON cannot hold is an error, never an invalid file."""
+    if kw.get("default") is not None:
+        default = kw["default"]
+        kw["default"] = lambda o: finite_json(default(o))
+    return json.dumps(finite_json(obj), allow_nan=False, **kw)
 
 
 def atomic_text(path, text: str) -> None:
@@ -267,7 +328,9 @@ def check_outputs(outputs: dict, inputs: dict | None = None) -> None:
         if not parent.is_dir():
             raise DataError(path, f"{opt}: {parent} is not a folder")
         if not os.access(parent, os.W_OK | os.X_OK):
-            raise DataError(path, f"{opt}: no permission to write in folder {parent}")
+            ro = hasattr(os, "statvfs") and os.statvfs(parent).f_flag & os.ST_RDONLY
+            raise DataError(path, f"{opt}: folder {parent} is on a read-only file system" if ro
+                            else f"{opt}: no permission to write in folder {parent}")
         for other, p in ins + outs[:i]:
             if same(path, p):
                 raise DataError(path, f"{opt} is the same file as {other}; it would be overwritten")

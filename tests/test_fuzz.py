@@ -21,6 +21,7 @@ The model is a tiny untrained one built here (as tests/test_modelfile.py builds 
 session's trained ci model: the properties need a valid file, not a good one.
 """
 import collections
+import errno
 import contextlib
 import hashlib
 import io
@@ -486,3 +487,227 @@ def test_output_paths(model_bytes, profile):
                 run_cli(tmp, argv, outputs)
     seen = fuzz(profile, 30, st.tuples(st.sampled_from(OUT_CHOICES), st.sampled_from(MESH_CHOICES)), prop)
     assert {"cli: exit 0", "cli: exit 2"} <= set(seen), dict(seen)
+
+
+# ------------------------------------------------------------------ issue 30: errors that point the right way
+#
+# Each case: exit 2, stderr exactly one line "error: PATH-or-OPTION: problem", no traceback, nothing
+# half-written. Operating-system failures are faked (a full disk, a read-only file system), so the
+# tests run without root or mounts.
+
+def cli_error(argv: list[str]) -> str:
+    """``main(argv)`` in-process: asserts exit 2 and one line on stderr, no traceback, nothing on stdout
+    but what ran before the failure; returns the line (without ``error: ``)."""
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        try:
+            code = main(argv)
+        except SystemExit as e:              # argparse's usage errors
+            code = e.code
+    lines = err.getvalue().splitlines()
+    assert code == 2, (code, err.getvalue())
+    assert "Traceback" not in err.getvalue(), err.getvalue()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err.getvalue()
+    return lines[0].removeprefix("error: ")
+
+
+@pytest.fixture
+def predict_folder(tmp_path, model_bytes):
+    """tmp_path with model.hbeo and a good depth.npy; returns the predict argv without --out."""
+    (tmp_path / "model.hbeo").write_bytes(model_bytes)
+    np.save(tmp_path / "depth.npy", good_depth())
+    return ["predict", "--model", str(tmp_path / "model.hbeo"), "--depth", str(tmp_path / "depth.npy"),
+            f"--intrinsics={K_TEXT}"]
+
+
+def _no_space(*a, **kw):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("which", ["--out", "--mesh"])
+def test_disk_full_while_writing_predict_outputs(predict_folder, tmp_path, monkeypatch, which):
+    """A full disk while the result (or the mesh) is written: one line naming that file, nothing left."""
+    import hbeo.storage
+    real = hbeo.storage.os.fsync
+    target = tmp_path / ("r.json" if which == "--out" else "s.ply")
+
+    def fsync(fd):                           # the disk fills while this output's bytes go out
+        if Path(os.readlink(f"/proc/self/fd/{fd}")).name.startswith(f".{target.name}."):
+            _no_space()
+        real(fd)
+    monkeypatch.setattr(hbeo.storage.os, "fsync", fsync)
+    import trimesh                           # the tiny untrained model completes nothing: a box stands in
+    monkeypatch.setattr(HBEO, "to_mesh", lambda self, pred: trimesh.creation.box())
+    before = snapshot(tmp_path)
+    line = cli_error(predict_folder + ["--out", str(tmp_path / "r.json"), "--mesh", str(tmp_path / "s.ply")])
+    assert line == f"{target}: no space left on the device", line
+    assert snapshot(tmp_path) == before                      # neither output, no temporary
+
+
+def test_read_only_file_system_voxelize_out(tmp_path, monkeypatch):
+    import hbeo.storage
+    ro = type("StatVFS", (), {"f_flag": os.ST_RDONLY})()
+    monkeypatch.setattr(hbeo.storage.os, "access", lambda *a, **kw: False)
+    monkeypatch.setattr(hbeo.storage.os, "statvfs", lambda p: ro)
+    line = cli_error(["voxelize", "--profile", "ci", "--out", str(tmp_path / "v.npz")])
+    assert str(tmp_path / "v.npz") in line and "read-only file system" in line, line
+    assert not list(tmp_path.iterdir())
+
+
+def test_read_only_file_system_when_writing(tmp_path, monkeypatch):
+    """The file system turns read-only after the checks: atomic_file's temporary cannot be made."""
+    import hbeo.storage
+
+    def mkstemp(*a, dir=None, **kw):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(Path(dir) / ".v.npz.x.tmp"))
+    monkeypatch.setattr(hbeo.storage.tempfile, "mkstemp", mkstemp)
+    with pytest.raises(OSError) as info:
+        hbeo.storage.atomic_text(tmp_path / "v.npz", "x")
+    from hbeo.cli import _os_error_line
+    assert _os_error_line(info.value) == f"{tmp_path / 'v.npz'}: read-only file system"
+
+
+def test_predict_out_in_proc_names_the_real_problem(predict_folder):
+    if not Path("/proc/version").is_file():
+        pytest.skip("no /proc")
+    line = cli_error(predict_folder + ["--out", "/proc/version"])
+    assert line.startswith("/proc/version: ") and "tmp" not in line, line
+
+
+@pytest.mark.parametrize("setting", ["HBEO_RESULTS", "HBEO_CACHE"])
+def test_path_setting_naming_a_file(tmp_path, monkeypatch, setting):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv(setting, str(blocker))
+    argv = ["voxelize", "--profile", "ci"] + (["--out", str(tmp_path / "run")] if setting == "HBEO_CACHE" else [])
+    line = cli_error(argv)
+    assert line == f"{blocker}: not a folder (a file is in the way) (set by {setting})", line
+
+
+def test_unexpected_error_is_a_bug_with_its_traceback(monkeypatch, capsys):
+    import hbeo.cli
+
+    def boom(args):
+        raise RuntimeError("boom")
+    monkeypatch.setattr(hbeo.cli, "cmd_report", boom)
+    assert main(["report", "--run", "x"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "RuntimeError: boom" in err
+    assert err.splitlines()[-1].startswith("error: unexpected RuntimeError: this is a bug in hbeo"), err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["train", "--epochs", "-1"], "--epochs"),
+    (["train", "--epochs", "0"], "--epochs"),
+    (["train", "--ref-distance", "-1"], "--ref-distance"),
+    (["train", "--ref-distance", "inf"], "--ref-distance"),
+    (["train", "--max-steps", "0"], "--max-steps"),
+    (["train", "--checkpoint-every", "1.5"], "--checkpoint-every"),
+    (["train", "--loader-workers", "-1"], "--loader-workers"),
+    (["train", "--seed", "-3"], "--seed"),
+    (["train", "--views", "nan"], "--views"),
+    (["render", "--workers", "-2"], "--workers"),
+    (["render", "--objects-per-shard", "0"], "--objects-per-shard"),
+    (["voxelize", "--workers", "x"], "--workers"),
+    (["subspace", "--variance", "0"], "--variance"),
+    (["subspace", "--variance", "1.5"], "--variance"),
+    (["subspace", "--known", "1"], "--known"),
+    (["subspace", "--components", "0"], "--components"),
+    (["predict", "--model", "m", "--depth", "d", "--intrinsics", "1,1,1,1", "--out", "o", "--rolls", "0"], "--rolls"),
+    (["predict", "--model", "m", "--depth", "d", "--intrinsics", "1,1,1,1", "--out", "o", "--depth-scale", "nan"],
+     "--depth-scale"),
+    (["evaluate", "--model", "m", "--out", "o", "--per-class", "0"], "--per-class"),
+    (["evaluate", "--model", "m", "--out", "o", "--views", "-1"], "--views"),
+])
+def test_numeric_options_refused_at_parse_time(argv, option):
+    line = cli_error(argv)
+    assert line.startswith(f"{option}: expected "), line
+
+
+def test_values_meaning_nothing_refused(predict_folder, tmp_path):
+    out = tmp_path / "r.json"
+    line = cli_error(predict_folder + ["--out", str(out), "--verify", "--verify-set", "noise_var=nan"])
+    assert line.startswith("--verify-set: ") and "finite" in line, line
+    line = cli_error(["train", "--loss-weights", "nan,1,1"])
+    assert line.startswith("--loss-weights ") and "finite" in line, line
+    line = cli_error(["train", "--loss-weights", "-1,1,1"])      # starts with "-": still the option's own check
+    assert line.startswith("--loss-weights "), line
+    assert not out.exists()
+
+
+def test_strict_json_results():
+    from hbeo.storage import json_text
+    import json
+    text = json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": np.float64("-inf"), "d": 2.5}, indent=1)
+    assert json.loads(text) == {"a": None, "b": [1.0, None], "c": None, "d": 2.5}
+    with pytest.raises(ValueError):          # json.loads would accept "NaN": parse strictly
+        json.loads(json_text({"x": float("nan")}).replace("null", "NaN"),
+                   parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+
+
+@pytest.mark.parametrize("case", ["missing", "png file", "manifest only"])
+def test_report_refuses_what_is_not_a_finished_run(tmp_path, case):
+    run = tmp_path / "run"
+    if case == "png file":
+        run = tmp_path / "figure.png"
+        run.write_bytes(b"\x89PNG\r\n\x1a\n")
+    elif case == "manifest only":
+        run.mkdir()
+        (run / "manifest.json").write_text('{"profile": "ci", "notebooks": {"04_train": {}}}')
+    line = cli_error(["report", "--run", str(run)])
+    want = {"missing": "no such run folder", "png file": "not a folder",
+            "manifest only": "04_train.ipynb"}[case]
+    assert str(run) in line and want in line, line
+    assert not (tmp_path / "run" / "REPRODUCTION.md").exists()
+
+
+def test_reproduce_only_refuses_unknown_notebooks(tmp_path):
+    line = cli_error(["reproduce", "--profile", "ci", "--out", str(tmp_path / "run"), "--only", "99"])
+    assert line.startswith("--only 99: no such notebook; the notebooks are 01_"), line
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("what, problem", [
+    ("inf", "depth is all infinite"), ("empty", "depth image is empty (0x0 pixels)"), ("nan", "depth is all NaN"),
+])
+def test_depth_messages_say_what_is_wrong(predict_folder, tmp_path, what, problem):
+    arr = {"inf": np.full((24, 32), np.inf, np.float32), "empty": np.zeros((0, 0), np.float32),
+           "nan": np.full((24, 32), np.nan, np.float32)}[what]
+    np.save(tmp_path / "depth.npy", arr)
+    line = cli_error(predict_folder + ["--out", str(tmp_path / "r.json")])
+    assert line == f"{tmp_path / 'depth.npy'}: {problem}", line
+
+
+def test_all_zero_mask_names_the_mask(predict_folder, tmp_path):
+    np.save(tmp_path / "mask.npy", np.zeros((K.height, K.width), bool))
+    line = cli_error(predict_folder + ["--mask", str(tmp_path / "mask.npy"), "--out", str(tmp_path / "r.json")])
+    assert line == f"{tmp_path / 'mask.npy'}: mask is all zero (no object pixel)", line
+    off = np.zeros((K.height, K.width), bool)
+    off[0, 0] = True                          # a mask beside the object: no measured pixel in it
+    np.save(tmp_path / "mask.npy", off)
+    line = cli_error(predict_folder + ["--mask", str(tmp_path / "mask.npy"), "--out", str(tmp_path / "r.json")])
+    assert line.startswith(f"{tmp_path / 'mask.npy'}: the mask covers no measured pixel"), line
+
+
+def test_negative_intrinsics_reach_the_intrinsics_check(predict_folder, tmp_path):
+    argv = [a for a in predict_folder if not a.startswith("--intrinsics")]
+    line = cli_error(argv + ["--intrinsics", "-262,262,16,12", "--out", str(tmp_path / "r.json")])
+    assert line.startswith("intrinsics '-262,262,16,12': "), line
+
+
+def test_every_method_from_a_run_folder_holding_only_the_model(ci_model, tmp_path, monkeypatch, capsys):
+    """evaluate --method beo on a folder with nothing but model.hbeo (as the committed reference run):
+    the run's grid sets and BEO's basis are built there, then BEO is fitted; voxcnn, whose rendered
+    training set takes a long job, names the command that makes it."""
+    import shutil
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy2(ci_model, run / "model.hbeo")
+    monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
+    common = ["evaluate", "--model", str(run / "model.hbeo"), "--dataset", "procedural", "--per-class", "1", "--quiet"]
+    line = cli_error(common + ["--method", "voxcnn", "--pose", "known", "--out", str(tmp_path / "v.json")])
+    assert line.startswith(f"{run / 'voxcnn.hbeo'}: missing") and "python -m hbeo render --profile ci" in line, line
+    assert main(common + ["--method", "beo", "--pose", "known", "--out", str(tmp_path / "b.json")]) == 0
+    assert {"grids_train.npz", "grids_test.npz", "subspace.npz", "beo.npz"} <= {p.name for p in run.iterdir()}
+    import json
+    assert json.loads((tmp_path / "b.json").read_text())["method"] == "beo"

@@ -30,7 +30,6 @@ published ones by name: per-object IoU and a summary. Imports the foundation and
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,7 +41,7 @@ from hbeo.data.datasets import Dataset
 from hbeo.data.gridset import GridSet, build_gridset
 from hbeo.errors import DataError, MissingDataError
 from hbeo.rundir import failure_summary
-from hbeo.storage import atomic_text, check_outputs, write_npz
+from hbeo.storage import atomic_text, check_outputs, json_text, write_npz
 
 #: the published file's string widths (``names`` <U16, ``classes`` <U11); longer names widen them
 NAME_WIDTH, CLASS_WIDTH = 16, 11
@@ -143,7 +142,7 @@ def write_gridfile(dataset: Dataset, path, cache=None, workers: int = 1, progres
     arrays["classes"] = np.array(classes, dtype=f"<U{max([CLASS_WIDTH] + [len(c) for c in classes])}")
     write_npz(path, None, compressed=True, **arrays)
     if failures:
-        atomic_text(failures_path(path), json.dumps(failures, indent=1) + "\n")
+        atomic_text(failures_path(path), json_text(failures, indent=1) + "\n")
     else:
         failures_path(path).unlink(missing_ok=True)
     result = GridFileResult(path, {s: len(g) for s, g in sets.items()}, total, failures)

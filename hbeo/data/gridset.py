@@ -15,6 +15,7 @@ foundation and :mod:`hbeo.data` only.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -211,6 +212,8 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     if any(r.split != split for r in records):
         raise ValueError(f"build_gridset: all records must be from split {split!r}")
     cdir = Path(cache) if cache is not None else config.cache_dir()
+    if cdir.exists() and not cdir.is_dir():       # fail before any work, naming the setting's file
+        raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(cdir))
     folder = cdir / f"{dataset.name.replace(os.sep, '_').strip('_')}-{split}-{cache_key(dataset, split, settings)}"
     keys = _item_keys(dataset, records)
     rows, files = _read_cache(folder) if folder.is_dir() else ({}, {})

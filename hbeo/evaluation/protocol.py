@@ -38,7 +38,7 @@ import numpy as np
 
 from hbeo import config
 from hbeo.rundir import RunDir
-from hbeo.storage import append_csv, atomic_text, sha256_file, tree_digest
+from hbeo.storage import append_csv, atomic_text, json_text, sha256_file, tree_digest
 
 SEED = 0
 #: HBEO with the extensions chosen on validation (issue 16): test-time roll averaging (bins models) and
@@ -159,7 +159,7 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
     if verified:
         m["method"] = VERIFIED
     m["request"] = request(run, method, pose, sampler)
-    atomic_text(path, json.dumps(m, indent=1))
+    atomic_text(path, json_text(m, indent=1))
     return m
 
 
@@ -242,7 +242,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.limits import check_rolls
     from hbeo.model.inference import HBEO
-    from hbeo.run import load_dataset, record_failures
+    from hbeo.run import baseline_inputs, load_dataset, record_failures
     from hbeo.storage import atomic_file, check_outputs
     check_outputs({"--out": out}, {"--model": model_path})
     check_rolls(rolls)                                  # before the model is read
@@ -251,12 +251,13 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     folder = RunDir(Path(model_path).parent)
     profile = model.settings.profile or "cpu"
     ds = load_dataset(dataset, profile)
+    baseline_inputs(folder, method, model, ds, dataset, progress=progress)     # grids, basis: built if missing
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
                              per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
     metrics["model"] = str(model_path)
     with atomic_file(out, "w") as f:
-        json.dump(metrics, f, indent=2)
+        f.write(json_text(metrics, indent=2))
     if split == "val":
         record_validation(folder, model_path, model, metrics)
     record_failures(folder, "evaluate", metrics["failures"], metrics["n_objects"] + len(metrics["failures"]), [split])

@@ -25,7 +25,6 @@ May import: foundation, data, render, model, and the other reproduction modules 
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,7 +37,7 @@ from hbeo.conventions import Intrinsics, backproject
 from hbeo.errors import DataError
 from hbeo.report import figures
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_file, atomic_text
+from hbeo.storage import atomic_file, atomic_text, json_text
 
 #: The files notebook 08 writes into the run folder (stems; PNGs through :meth:`RunDir.figure`).
 DEPTH_PNG, MASK_PNG = "08_depth_mm", "08_mask"
@@ -388,7 +387,7 @@ def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls
         with atomic_file(run.path / MESH_FILE) as f:
             f.write(data.encode() if isinstance(data, str) else data)
         result["mesh"] = str(run.path / MESH_FILE)
-    atomic_text(run.path / ANSWER_JSON, json.dumps(result, indent=2, default=_json_default))
+    atomic_text(run.path / ANSWER_JSON, json_text(result, indent=2, default=_json_default))
     return result
 
 

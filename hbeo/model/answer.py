@@ -13,7 +13,6 @@ May import: foundation, data, subspace, render, and the other hbeo.model modules
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,11 +121,10 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     (:meth:`hbeo.model.inference.HBEO.to_mesh`); both files are complete before either is renamed into
     place, and a bad output path (or one naming an input) fails before any work. DataError names the file
     at fault."""
-    from contextlib import ExitStack
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.model.inference import HBEO
-    from hbeo.storage import atomic_file, check_outputs
+    from hbeo.storage import atomic_files, check_outputs, json_text
     if out is not None:
         check_outputs({"--out": out, "--mesh": mesh_path}, {"--depth": depth_path, "--mask": mask_path,
                                                             "--model": model_path})
@@ -136,6 +134,8 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     depth = read_depth(depth_path, depth_scale)
     K = parse_intrinsics(intrinsics, depth.shape[1], depth.shape[0])
     mask = read_mask(mask_path, depth.shape) if mask_path else None
+    if mask is not None and not (mask & (depth > 0)).any():
+        raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
     model = HBEO.load(model_path, precision=precision)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
@@ -146,9 +146,9 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
         answer.extra["mesh"] = str(mesh_path)
         data = mesh.export(file_type=Path(mesh_path).suffix.lstrip(".").lower())
         data = data.encode() if isinstance(data, str) else data
-    if out is not None:
-        with ExitStack() as files:
-            files.enter_context(atomic_file(out, "w")).write(json.dumps(answer.to_json(), indent=2))
+    if out is not None:                               # both complete before either is renamed
+        with atomic_files([(out, "w")] + ([(mesh_path, "wb")] if data is not None else [])) as files:
+            files[0].write(json_text(answer.to_json(), indent=2))
             if data is not None:
-                files.enter_context(atomic_file(mesh_path)).write(data)
+                files[1].write(data)
     return answer

@@ -60,12 +60,19 @@ def read_depth(path, depth_scale: float | None = None) -> np.ndarray:
         depth_scale = 0.001 if raw.dtype.kind in "ui" else 1.0
     if not np.isfinite(depth_scale) or depth_scale <= 0:
         raise DataError(path, f"depth scale must be positive, got {depth_scale}")
-    d = raw.astype(np.float64) * depth_scale
-    if np.isnan(d).all():
-        raise DataError(path, "depth is all NaN")
-    d = np.where(np.isfinite(d) & (d > 0), d, 0.0)
+    if raw.size == 0:
+        raise DataError(path, f"depth image is empty ({raw.shape[1]}x{raw.shape[0]} pixels)")
+    with np.errstate(over="ignore", invalid="ignore"):
+        d = raw.astype(np.float64) * depth_scale
+    finite = np.isfinite(d)
+    if not finite.any():
+        nan = np.isnan(d)
+        raise DataError(path, "depth is all NaN" if nan.all() else "depth is all infinite" if not nan.any()
+                        else "depth has no finite value (only NaN and infinity)")
+    d = np.where(finite & (d > 0), d, 0.0)
     if not (d > 0).any():
-        raise DataError(path, "depth is all zero (no measurement in the image)")
+        raise DataError(path, "depth is all zero (no measurement in the image)" if not np.any(raw)
+                        else "depth has no positive finite value (no measurement in the image)")
     med, (lo, hi) = float(np.median(d[d > 0])), DEPTH_RANGE_M
     if not lo <= med <= hi:
         stored = "integers read as millimetres" if raw.dtype.kind in "ui" else "floats read as metres"
@@ -85,6 +92,8 @@ def read_mask(path, shape: tuple[int, int]) -> np.ndarray:
     if m.shape != tuple(shape):
         raise DataError(path, f"mask is {m.shape[1] if m.ndim > 1 else '?'}x{m.shape[0]} but the depth image "
                               f"is {shape[1]}x{shape[0]}")
+    if not m.any():
+        raise DataError(path, "mask is all zero (no object pixel)")
     return m.astype(bool)
 
 

@@ -19,6 +19,7 @@ May import: foundation, data, subspace, render, and the other hbeo.model modules
 """
 from __future__ import annotations
 
+import math
 from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -435,8 +436,8 @@ def parse_loss_weights(text: str) -> LossWeights:
         c, o, p = (float(x) for x in text.split(","))
     except ValueError:
         raise ValueError(f"--loss-weights takes three numbers gamma_c,gamma_o,gamma_p, got {text!r}") from None
-    if min(c, o, p) < 0:
-        raise ValueError(f"--loss-weights must not be negative, got {text!r}")
+    if not all(math.isfinite(v) and v >= 0 for v in (c, o, p)) or c + o + p == 0:
+        raise ValueError(f"--loss-weights must be finite, not negative and not all zero, got {text!r}")
     return LossWeights(c, o, p)
 
 

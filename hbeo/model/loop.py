@@ -29,7 +29,6 @@ May import: foundation (hbeo.errors, hbeo.storage, hbeo.rundir), torch and
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 import random
@@ -50,7 +49,7 @@ from hbeo.errors import DataError
 from hbeo.model import distributed
 from hbeo.model.distributed import World, rank_slice
 from hbeo.rundir import CHECKPOINT, RANKS, TRAIN_LOG
-from hbeo.storage import atomic_file
+from hbeo.storage import atomic_file, json_text
 
 CHECKPOINT_FORMAT = 1
 #: TrainConfig fields that describe the machine, not the run: they may change between a run and its resume.
@@ -448,8 +447,8 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
         digests = distributed.agree(module, w)
         if w.main:
             with atomic_file(out / RANKS, "w") as f:
-                json.dump({"world_size": w.size, "backend": torch.distributed.get_backend(), "step": step,
-                           "weights_sha256": digests}, f, indent=2)
+                f.write(json_text({"world_size": w.size, "backend": torch.distributed.get_backend(), "step": step,
+                                   "weights_sha256": digests}, indent=2))
     return module.eval()
 
 

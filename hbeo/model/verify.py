@@ -95,11 +95,14 @@ class VerifyConfig:
                 kw[key] = kind(value.strip())
             except ValueError:
                 raise ValueError(f"verify setting {part!r}: {value.strip()!r} is not a {types[key]}") from None
+            if kind is float and not math.isfinite(kw[key]):
+                raise ValueError(f"verify setting {part!r}: must be a finite number")
         cfg = cls(**kw)
-        if cfg.classes < 1 or cfg.rotations < 1 or cfg.noise_var <= 0 or cfg.prior_scale <= 0 or \
-                min(cfg.radius_deg, cfg.class_weight, cfg.net_weight) < 0:
+        if cfg.classes < 1 or cfg.rotations < 1 or cfg.noise_var <= 0 or cfg.prior_scale <= 0 or cfg.realign < 0 or \
+                min(cfg.radius_deg, cfg.class_weight, cfg.net_weight, cfg.min_agreement, cfg.agreement_tol) < 0:
             raise ValueError(f"verify settings out of range: {cfg} (classes, rotations >= 1; noise_var, "
-                             f"prior_scale > 0; radius_deg, class_weight, net_weight >= 0)")
+                             f"prior_scale > 0; realign, radius_deg, class_weight, net_weight, min_agreement, "
+                             f"agreement_tol >= 0)")
         return cfg
 
 

@@ -72,7 +72,7 @@ from hbeo.rundir import RENDER_MANIFEST, failure
 from hbeo.render.noise import SensorNoise
 from hbeo.render.views import (ObjectViews, RenderSettings, _as_int, _noise_description, _record_name,
                                _split_code)
-from hbeo.storage import (atomic_text, pack_bits, sha256_file, sidecar_path, verify_sidecar, write_npz,
+from hbeo.storage import (atomic_text, json_text, pack_bits, sha256_file, sidecar_path, verify_sidecar, write_npz,
                           write_sidecar)
 
 FORMAT_VERSION = 1
@@ -436,7 +436,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         for p in damaged:                                   # rendered again below
             p.unlink(missing_ok=True)
             sidecar_path(p).unlink(missing_ok=True)
-        atomic_text(partial, json.dumps(ident, indent=1))
+        atomic_text(partial, json_text(ident, indent=1))
         final.unlink()
     if partial.exists():
         try:
@@ -448,7 +448,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
         raise DataError(out, "holds shards but no manifest: not a set this hbeo is rendering; "
                              "render into another folder or delete it")
     else:
-        atomic_text(partial, json.dumps(ident, indent=1))
+        atomic_text(partial, json_text(ident, indent=1))
     for tmp in out.glob(".shard_*.tmp"):         # left behind by a killed run
         tmp.unlink(missing_ok=True)
 
@@ -514,7 +514,7 @@ def render_set(dataset, records, split: str, out_dir, settings: RenderSettings, 
                    for k in range(len(chunks)) if info[k]["n_images"]],
         "failed": failed,
     })
-    atomic_text(final, json.dumps(data, indent=1))
+    atomic_text(final, json_text(data, indent=1))
     partial.unlink(missing_ok=True)
     rate = rendered / seconds if rendered and seconds > 0 else None
     return Manifest(final, data, images_per_s=rate, rendered=rendered, seconds=seconds)

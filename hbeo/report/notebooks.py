@@ -23,7 +23,12 @@ NOTEBOOKS = config.REPO_ROOT / "notebooks"
 def notebooks(only=None) -> list[Path]:
     """The numbered notebooks (``NN_name.ipynb``) in order, optionally filtered by name prefix."""
     nbs = sorted(p for p in NOTEBOOKS.glob("[0-9][0-9]_*.ipynb"))
-    if only:
+    if only is not None:
+        unknown = [o for o in only if not any(p.name.startswith(o) for p in nbs)]
+        if unknown or not only:
+            from hbeo.errors import HBEOError
+            what = f"--only {' '.join(unknown)}: no such notebook" if unknown else "--only: no notebook named"
+            raise HBEOError(f"{what}; the notebooks are {', '.join(p.stem for p in nbs)}")
         nbs = [p for p in nbs if any(p.name.startswith(o) for o in only)]
     return nbs
 
@@ -43,12 +48,12 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     """
     import papermill as pm
     from hbeo.report.reproduction_md import write_reports
+    nbs = notebooks(only)                    # an unknown --only fails before anything is opened
     run = preflight(profile, dataset, out_dir).dir
     if fresh:
         for p in clear_products(run):
             print(f"[hbeo] fresh run: removed {p}", flush=True)
         write_manifest(run, profile, dataset, fresh=True)
-    nbs = notebooks(only)
     done = []
     t_all = time.perf_counter()
     for k, nb in enumerate(nbs, 1):

@@ -24,7 +24,7 @@ from hbeo import __version__
 from hbeo import config
 from hbeo.evaluation.protocol import SEED
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, json_text
 
 #: The packages whose versions a manifest records (beside Python and hbeo).
 PACKAGES = ("numpy", "scipy", "torch", "trimesh", "scikit-learn", "scikit-image", "pandas", "matplotlib",
@@ -115,5 +115,5 @@ def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, 
          "one_commit": len({n["commit"] for n in nbs.values()}) <= 1 and not any(n["dirty"] for n in nbs.values()),
          "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": " ".join(sys.argv)}
     m["wall_time_total_s"] = round(sum(n["wall_s"] for n in nbs.values()), 1)
-    atomic_text(run.manifest, json.dumps(m, indent=1))
+    atomic_text(run.manifest, json_text(m, indent=1))
     return m

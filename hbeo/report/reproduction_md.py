@@ -205,9 +205,37 @@ def deviations(man: dict, run=None) -> list[str]:
     ]
 
 
+def check_finished_run(run) -> RunDir:
+    """``run`` as a RunDir if it is a finished run folder: a folder whose ``manifest.json`` (written by
+    ``python -m hbeo reproduce``) records the profile and the executed notebooks, each of them there. Else
+    DataError naming the folder (or the manifest) and what is missing."""
+    from hbeo.errors import DataError
+    path = RunDir.of(run).path
+    if not path.exists():
+        raise DataError(path, "no such run folder")
+    if not path.is_dir():
+        raise DataError(path, "not a folder (expected a run folder, e.g. results/cpu-modelnet10-vox30)")
+    run = RunDir.of(run)
+    if not run.manifest.is_file():
+        raise DataError(path, "not a finished run: no manifest.json (python -m hbeo reproduce writes it)")
+    try:
+        man = json.loads(run.manifest.read_text())
+    except (OSError, ValueError) as err:
+        raise DataError(run.manifest, f"unreadable manifest ({type(err).__name__}: {err})") from None
+    done = man.get("notebooks") if isinstance(man, dict) else None
+    if not isinstance(done, dict) or not done or not man.get("profile"):
+        raise DataError(run.manifest, "records no executed notebook or no profile: not a finished run "
+                                      "(python -m hbeo reproduce writes it)")
+    missing = [f"{nb}.ipynb" for nb in done if not run.notebook(nb).is_file()]
+    if missing:
+        raise DataError(path, f"not a finished run: the manifest's executed notebooks are missing ({', '.join(missing)})")
+    return run
+
+
 def write_reproduction(run, out=None) -> Path:
     """The run's ``REPRODUCTION.md`` (or ``out``, e.g. ``paper/REPRODUCTION.md``) from a finished run folder
-    (a RunDir or a path): the text of :func:`reproduction_text`, written atomically. Returns the path written."""
+    (a RunDir or a path; ``python -m hbeo report`` checks it first, :func:`check_finished_run`): the text of
+    :func:`reproduction_text`, written atomically. Returns the path written."""
     out = Path(out) if out else RunDir.of(run).path / "REPRODUCTION.md"
     atomic_text(out, reproduction_text(run, out))
     return out
