@@ -4,15 +4,12 @@ package function (mostly a stage of :class:`hbeo.run.Run`). Bad input exits 2 wi
 from __future__ import annotations
 
 import argparse
-import errno
 import json
 import math
-import os
 import sys
 import traceback
-from pathlib import Path
 
-from hbeo.errors import HBEOError
+from hbeo.errors import HBEOError, os_error_line
 from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
 from hbeo.rundir import DEFAULT_MODEL
 
@@ -74,41 +71,6 @@ def _join_list_values(argv: list[str]) -> list[str]:
 
 
 # --------------------------------------------------------------------------- the one error boundary
-
-#: what an operating-system error means, in words
-_OS_WORDS = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
-             errno.EACCES: "permission denied", errno.EPERM: "operation not permitted",
-             errno.ENOTDIR: "not a folder", errno.EISDIR: "is a folder, not a file",
-             errno.ENOENT: "no such file or folder", errno.EEXIST: "already exists",
-             errno.EDQUOT: "disk quota exceeded", errno.ENAMETOOLONG: "file name too long",
-             errno.EIO: "input/output error (a failing disk or a lost network drive?)",
-             errno.EMFILE: "too many open files", errno.EXDEV: "cannot move across file systems",
-             errno.ENOTEMPTY: "folder not empty", errno.ELOOP: "too many symbolic links"}
-_PATH_SETTINGS = ("HBEO_RESULTS", "HBEO_CACHE", "HBEO_DATA")
-
-
-def _os_error_line(err: OSError) -> str:
-    """``PATH: what happened`` for an operating-system error (the file in the way for ENOTDIR, and the
-    setting that pointed there)."""
-    path = err.filename
-    own = err.strerror if (err.strerror or "").startswith("cannot ") else None     # atomic_file's own words
-    words = own or _OS_WORDS.get(err.errno) or (err.strerror or str(err)).lower()
-    if path is None:
-        return words
-    path = os.fsdecode(path)
-    if err.errno == errno.ENOTDIR:              # name the file that stands where a folder must be
-        for parent in [Path(path), *Path(path).parents]:
-            if parent.exists():
-                if not parent.is_dir():
-                    words, path = "not a folder (a file is in the way)", str(parent)
-                break
-    for name in _PATH_SETTINGS:
-        value = os.environ.get(name)
-        if value and (path == value or path.startswith(value.rstrip("/") + "/")):
-            words += f" (set by {name})"
-            break
-    return f"{path}: {words}"
-
 
 def _bug(err: BaseException) -> int:
     traceback.print_exc()
@@ -408,7 +370,7 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except OSError as err:
-        print(f"error: {_os_error_line(err)}", file=sys.stderr)
+        print(f"error: {os_error_line(err)}", file=sys.stderr)
         return 2
     except Exception as err:                # noqa: BLE001 - anything else is a bug, said so once
         return _bug(err)

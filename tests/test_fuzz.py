@@ -563,8 +563,8 @@ def test_read_only_file_system_when_writing(tmp_path, monkeypatch):
     monkeypatch.setattr(hbeo.storage.tempfile, "mkstemp", mkstemp)
     with pytest.raises(OSError) as info:
         hbeo.storage.atomic_text(tmp_path / "v.npz", "x")
-    from hbeo.cli import _os_error_line
-    assert _os_error_line(info.value) == f"{tmp_path / 'v.npz'}: read-only file system"
+    from hbeo.errors import os_error_line
+    assert os_error_line(info.value) == f"{tmp_path / 'v.npz'}: read-only file system"
 
 
 def test_predict_out_in_proc_names_the_real_problem(predict_folder):
