@@ -58,7 +58,7 @@ def cmd_train(args) -> int:
     from hbeo.model import distributed
     from hbeo.model.fit import TrainOptions, ViewOptions, parse_loss_weights
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
-            "name", "max_steps", "checkpoint_every", "loader_workers")                # TrainOptions' names
+            "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), **{k: getattr(args, k) for k in same})
     world = distributed.setup()                       # under torchrun: join the other processes
@@ -215,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shape-loss", choices=("coeffs", "voxels"),
                    help="shape term: the standardized coefficient error (paper) or the completed grid's occupancy "
                         "error through the basis (default: the profile's recipe, hbeo.config.RecipeConfig.fit_kwargs)")
+    p.add_argument("--class-balance", choices=("none", "sampler", "loss"),
+                   help="class imbalance: none (the paper's), sampler (each class drawn equally often) or loss "
+                        "(inverse-frequency weighted cross-entropy); default: the profile's recipe")
     p.add_argument("--sampler", choices=("so3", "upright"), default="so3",
                    help="training viewpoints: uniform SO(3) (the paper's) or upright (random yaw, no roll)")
     p.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"), default="auto",
