@@ -130,7 +130,7 @@ def main(argv=None) -> int:
               "per_class": args.per_class, "n_objects": metrics["n_objects"], "n_queries": metrics["n_queries"],
               "failures": len(failures), "class_counts": dict(zip(model.classes, counts)), "counts_source": source,
               "rule": "tau with the highest class-mean accuracy on validation; ties to the smaller tau",
-              "best_tau_on_this_split": best, "seconds": round(time.perf_counter() - t0, 1),
+              **({"chosen_tau": best} if args.split == "val" else {}), "seconds": round(time.perf_counter() - t0, 1),
               "taus": [{k: v for k, v in res[t].items() if k != "metrics"} for t in taus],
               "difference_vs_tau0": diff, "bootstrap": {"n_boot": args.n_boot, "level": boot.level,
                                                         "unit": "objects, resampled within class"}}
@@ -143,8 +143,8 @@ def main(argv=None) -> int:
         d = diff.get(f"{t:g}", {}).get("class_accuracy")
         print(f"tau {t:<5g} accuracy {r['accuracy']:.4f}  class-mean {r['class_mean_accuracy']:.4f}"
               + (f"  (vs 0: {d['value']:+.4f} [{d['low']:+.4f}, {d['high']:+.4f}])" if d else ""))
-    print(f"{args.split}: n = {metrics['n_queries']} queries of {metrics['n_objects']} objects; best class-mean: "
-          f"tau {best:g}; {report['seconds']} s; counts from {source} -> {out}")
+    print(f"{args.split}: n = {metrics['n_queries']} queries of {metrics['n_objects']} objects; "
+          + (f"chosen: tau {best:g}; " if args.split == "val" else "") + f"{report['seconds']} s; counts from {source} -> {out}")
     return 0
 
 

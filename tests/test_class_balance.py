@@ -120,7 +120,8 @@ def test_training_with_the_sampler_resumes_exactly(tmp_path):
 
 
 @pytest.mark.parametrize("balance", ["sampler", "loss"])
-def test_train_command_balances_classes_and_records_the_counts(ci_render, ci_run, copy_run, tmp_path, balance):
+def test_train_command_balances_classes_and_records_the_counts(ci_render, ci_run, copy_run, tmp_path, balance,
+                                                              capsys):
     import json
     from hbeo import cli
     from hbeo.model.loop import load_checkpoint
@@ -141,3 +142,4 @@ def test_train_command_balances_classes_and_records_the_counts(ci_render, ci_run
     assert settings["train"]["data"].get("class_balance") == ("sampler" if balance == "sampler" else None)
     if balance == "sampler":                          # the shards source reads a few shards at a time: refused
         assert cli.main([*args[:-1], "--data", "shards", "--name", "other.hbeo", "--quiet"]) == 2
+        assert "class balance 'sampler'" in capsys.readouterr().err and not run.model_file("other.hbeo").exists()
