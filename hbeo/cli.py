@@ -126,7 +126,7 @@ def cmd_train(args) -> int:
     from hbeo.model import distributed
     from hbeo.model.fit import TrainOptions, ViewOptions, parse_loss_weights
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
-            "name", "max_steps", "checkpoint_every", "loader_workers")                # TrainOptions' names
+            "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), **{k: getattr(args, k) for k in same})
     world = distributed.setup()                       # under torchrun: join the other processes
@@ -146,11 +146,17 @@ def _add_verify(p) -> None:
                    help="verify settings over the defaults, e.g. classes=1,noise_var=1 (hbeo.model.verify.VerifyConfig)")
 
 
+def _add_prior(p) -> None:
+    p.add_argument("--prior-tau", type=float, default=0.0, metavar="TAU",
+                   help="prior correction: class logits minus TAU * log(training class prior), TAU in [0, 1] "
+                        "(0: the paper's, default; 1: divide by the prior; hbeo.model.inference.HBEO.set_prior_tau)")
+
+
 def cmd_predict(args) -> int:
     from hbeo.model.answer import predict_file, verify_config
     verify = verify_config(args.verify, args.verify_set)  # bad settings fail before the model is read
     answer = predict_file(args.model, args.depth, args.intrinsics, args.mask, args.depth_scale, args.rolls, verify,
-                          args.precision, out=args.out, mesh_path=args.mesh)
+                          args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau)
     for w in answer.warnings:
         print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     r = answer.to_json()
@@ -164,7 +170,7 @@ def cmd_evaluate(args) -> int:
     metrics = evaluate_file(args.model, args.dataset, args.out, split=args.split, views=args.views, seed=args.seed,
                             sampler=args.sampler, noise=args.noise, per_class=args.per_class, method=args.method,
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
-                            max_steps=args.max_steps, progress=not args.quiet)
+                            max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     print(json.dumps(short, indent=2))
     return 2 if (metrics["failures"] and args.strict) else 0
@@ -274,6 +280,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shape-loss", choices=("coeffs", "voxels"),
                    help="shape term: the standardized coefficient error (paper) or the completed grid's occupancy "
                         "error through the basis (default: the profile's recipe, hbeo.config.RecipeConfig.fit_kwargs)")
+    p.add_argument("--class-balance", choices=("none", "sampler", "loss"),
+                   help="class imbalance: none (the paper's), sampler (each class drawn equally often) or loss "
+                        "(inverse-frequency weighted cross-entropy); default: the profile's recipe")
     p.add_argument("--sampler", choices=SAMPLERS, default="so3", help="training viewpoints; " + _SAMPLER_HELP)
     p.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"), default="auto",
                    help="renderer of the training views (auto); torch: ray-march each object's grid (grid "
@@ -304,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="result JSON")
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
     _add_verify(p)
+    _add_prior(p)
     p = _command(sub, cmd_evaluate, "evaluate", help="render a dataset's views, predict and write the metrics JSON")
     p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
                                                   "every method; baselines live beside it)")
@@ -316,6 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=COUNT,
                    help="voxcnn: when it must be trained first, stop after this many optimizer steps")
     _add_verify(p)
+    _add_prior(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")

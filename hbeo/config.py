@@ -77,6 +77,9 @@ class RecipeConfig:
     rotation: str = "axis_angle"
     augment_roll: bool = False
     shape_loss: str = "coeffs"
+    #: How training counters the class imbalance (``hbeo.model.fit.CLASS_BALANCE``): ``none`` (the paper's),
+    #: ``sampler`` (classes drawn uniformly) or ``loss`` (inverse-frequency weighted cross-entropy).
+    class_balance: str = "none"
     #: Epochs of each option compared in notebook 04 (None: ``epochs``); every variant, the run's recipe
     #: included, is trained that long, so the comparison is fair (and short).
     option_epochs: int | None = None
@@ -134,7 +137,7 @@ _FLAT_ORDER = ("name", "n_train_per_class", "n_test_per_class", "views_per_objec
                "voxcnn_channels", "voxcnn_bottleneck", "voxcnn_epochs", "voxcnn_batch_size", "voxcnn_lr",
                "voxcnn_views_per_object", "voxcnn_pos_weight", "train_data", "stream_val_views", "rotation",
                "augment_roll", "shape_loss", "option_epochs", "options", "eval_views", "icp_test_per_class",
-               "render_backend", "val_split", "twin_iou")
+               "render_backend", "val_split", "twin_iou", "class_balance")
 
 
 @dataclass(frozen=True)

@@ -317,6 +317,8 @@ class Run:
         if main:
             info = {"model": path.name, "recipe": opts.recipe(prof), "epochs": opts.epochs or prof.recipe.epochs,
                     "resumed_from_step": resumed, "n_params": model.net.n_params()}
+            if (balance := opts.class_balance or prof.recipe.class_balance) != "none":
+                info["class_balance"] = balance
             if opts.changed():
                 info["options"] = opts.changed()
             atomic_text(self.dir.training_provenance(path), json_text(info, indent=1))

@@ -383,6 +383,28 @@ def _profile_split(profile) -> tuple[str, float | None]:
     return prof.data.val_split, prof.data.twin_iou
 
 
+def _held_out(dataset: "Dataset", profile=None, gridset=None) -> tuple[list[ObjectRecord], np.ndarray]:
+    """(``select``'s training records of ``profile``, bool mask (n,) of those training holds out)."""
+    train = select(dataset, "train", profile)
+    how, twin = _profile_split(profile)
+    held = validation_mask([dataset.classes.index(r.cls) for r in train], VAL_FRACTION, VAL_SEED, how,
+                           record_grids(train, gridset) if how == "grouped" else None, twin)
+    return train, held
+
+
+def training_class_counts(dataset: "Dataset", profile=None, gridset=None) -> np.ndarray:
+    """(C,) int: the objects of each of ``dataset.classes`` that a run with ``profile`` trains on (its
+    training records less :func:`validation_records`' objects): the training class prior of a model
+    file that does not record its own (:attr:`hbeo.model.modelfile.ModelSettings.class_counts`, images
+    per class: proportional to these, every object rendered alike, up to objects that failed)."""
+    train, held = _held_out(dataset, profile, gridset)
+    counts = np.zeros(len(dataset.classes), np.int64)
+    for r, h in zip(train, held):
+        if not h:
+            counts[dataset.classes.index(r.cls)] += 1
+    return counts
+
+
 def validation_records(dataset: "Dataset", profile=None, per_class: int | None = None,
                        gridset=None) -> list[ObjectRecord]:
     """The training split's objects that training holds out (:data:`VAL_FRACTION`, :data:`VAL_SEED`,
@@ -390,10 +412,7 @@ def validation_records(dataset: "Dataset", profile=None, per_class: int | None =
     :func:`validation_mask`), in that order; the first ``per_class`` of each class when given. Their
     ``split`` stays ``"train"``. ``gridset``: the run's training grids, which a ``grouped`` split of a
     mesh dataset needs (:func:`record_grids`)."""
-    train = select(dataset, "train", profile)
-    how, twin = _profile_split(profile)
-    held = validation_mask([dataset.classes.index(r.cls) for r in train], VAL_FRACTION, VAL_SEED, how,
-                           record_grids(train, gridset) if how == "grouped" else None, twin)
+    train, held = _held_out(dataset, profile, gridset)
     out = [r for r, h in zip(train, held) if h]
     if per_class is None:
         return out

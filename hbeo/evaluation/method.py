@@ -18,7 +18,7 @@ the conformance suite every registered method passes):
     of the truth it may use is the paper's protocol (:mod:`hbeo.baselines.methods`).
 ``describe() -> dict``
     what the metrics dict records of the method's own settings beyond name and pose (HBEO:
-    ``precision``, ``rolls``, ``verify``; a baseline: ``{}``).
+    ``precision``, ``rolls``, ``verify``, ``prior_tau`` and ``class_prior``; a baseline: ``{}``).
 
 Preparation is not the loop's: a method arrives ready to answer (a baseline fitted or loaded by
 :func:`hbeo.baselines.methods.load_method`, HBEO loaded and wrapped in :class:`HBEOMethod`).
@@ -111,8 +111,11 @@ class HBEOMethod:
 
     def describe(self) -> dict:
         verify = self.verify if self.min_agreement is None else _with_agreement(self.verify, self.min_agreement)
+        tau = getattr(self.model, "prior_tau", 0.0)
+        prior = None if not tau else {"tau": tau, "source": self.model.prior_source,
+                                      "counts": list(self.model.class_counts)}
         return {"precision": getattr(self.model, "precision", "float32"), "rolls": self.rolls,
-                "verify": verify.to_dict() if verify is not None else None}
+                "verify": verify.to_dict() if verify is not None else None, "prior_tau": tau, "class_prior": prior}
 
     def _prediction(self, depth, intrinsics):
         if self._shared is None:

@@ -233,11 +233,14 @@ def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
 def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int = 1, seed: int = 0, sampler=None,
                   noise: bool = False, per_class: int | None = None, method: str = "hbeo", pose: str | None = None,
                   precision: str = "float32", rolls: int = 1, verify=None, max_steps: int | None = None,
-                  progress: bool = True) -> dict:
+                  progress: bool = True, prior_tau: float = 0.0) -> dict:
     """``python -m hbeo evaluate``: the metrics of ``method`` (HBEO, or a baseline fitted/trained beside the
     model file when missing) on ``dataset``'s ``split`` (read with the model's profile), written to ``out``
     (JSON); ``split="val"`` also adds a row to the model folder's ``validation.csv``; objects that could not
-    be evaluated go to its ``failures.json``. Returns the metrics."""
+    be evaluated go to its ``failures.json``. ``prior_tau``: HBEO's prior correction
+    (:meth:`hbeo.model.inference.HBEO.set_prior_tau`) with the model file's training class counts, or, for a
+    file without them, the dataset's (:func:`hbeo.data.datasets.training_class_counts` of the model's profile;
+    the metrics' ``class_prior.source`` says so). Returns the metrics."""
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.limits import check_rolls
@@ -252,6 +255,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     profile = model.settings.profile or "cpu"
     ds = load_dataset(dataset, profile)
     baseline_inputs(folder, method, model, ds, dataset, progress=progress)     # grids, basis: built if missing
+    model_prior(model, ds, prior_tau)
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
                              per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
@@ -262,6 +266,21 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
         record_validation(folder, model_path, model, metrics)
     record_failures(folder, "evaluate", metrics["failures"], metrics["n_objects"] + len(metrics["failures"]), [split])
     return metrics
+
+
+def model_prior(model, dataset, tau: float):
+    """Set ``model``'s prior correction ``tau`` (:meth:`hbeo.model.inference.HBEO.set_prior_tau`): with its
+    file's training class counts, or for a file without them (written before they were recorded) with
+    ``dataset``'s training objects per class under the model's profile
+    (:func:`hbeo.data.datasets.training_class_counts`; the source is named so). Returns the model."""
+    if not tau or model.settings.class_counts is not None:
+        return model.set_prior_tau(tau)
+    from hbeo.data.datasets import training_class_counts
+    counts = training_class_counts(dataset, model.settings.profile)
+    order = [list(dataset.classes).index(c) for c in model.classes]
+    return model.set_prior_tau(tau, counts[order], f"{dataset.name} training split, objects per class under "
+                                                   f"profile {model.settings.profile} less validation (the model "
+                                                   f"file records no class counts)")
 
 
 def _val_split(model) -> str:
@@ -287,7 +306,7 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
            "model": os.path.basename(str(model_path)), "model_sha256": sha256_file(model_path)[:16],
            "rotation_head": model.net.cfg.rotation, "augment_roll": model.settings.augment_roll,
            "method": metrics["method"] + ("+verify" if metrics.get("verify") else ""), "pose": metrics["pose"],
-           "rolls": metrics.get("rolls"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
+           "rolls": metrics.get("rolls"), "prior_tau": metrics.get("prior_tau"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
            "views": metrics["views"], "seed": metrics["seed"], "n_objects": metrics["n_objects"],
            "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"],
            "class_mean_accuracy": metrics.get("class_mean_accuracy"), "val_split": _val_split(model),

@@ -82,6 +82,7 @@ class Answer:
     rolls: int = 1
     verify: dict | None = None
     extra: dict = field(default_factory=dict)
+    prior_tau: float = 0.0
 
     @property
     def cls(self) -> str:
@@ -100,11 +101,11 @@ class Answer:
         return list(self.prediction.warnings[0]) if self.prediction.warnings else []
 
     def to_json(self) -> dict:
-        """``predict --out``'s keys: model, depth, precision, rolls, verify, then the prediction's
+        """``predict --out``'s keys: model, depth, precision, rolls, verify, prior_tau, then the prediction's
         (:meth:`~hbeo.model.inference.Prediction.to_dict`: class, probabilities, rotation, axis_angle,
         translation_m, scale, coeffs, ..., warnings, timing_ms), then any ``extra``."""
         return {"model": self.model, "depth": self.depth, "precision": self.precision, "rolls": self.rolls,
-                "verify": self.verify, **self.prediction.to_dict(0), **self.extra}
+                "verify": self.verify, "prior_tau": self.prior_tau, **self.prediction.to_dict(0), **self.extra}
 
 
 #: file types ``predict --mesh`` writes (trimesh's exporters)
@@ -112,11 +113,13 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 
 
 def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_scale: float | None = None,
-                 rolls: int = 1, verify=None, precision: str = "float32", out=None, mesh_path=None) -> Answer:
+                 rolls: int = 1, verify=None, precision: str = "float32", out=None, mesh_path=None,
+                 prior_tau: float = 0.0) -> Answer:
     """``python -m hbeo predict``: read ``depth_path`` (16-bit PNG in mm or float ``.npy``/``.tiff`` in m,
     times ``depth_scale``), its ``intrinsics`` ``"fx,fy,cx,cy"`` and optional mask file
     (:mod:`hbeo.model.depthfile`), and answer with the model file ``model_path`` (network arithmetic
-    ``precision``) through :class:`Predictor`. With ``out``, the answer's JSON (:meth:`Answer.to_json`) is
+    ``precision``, prior correction ``prior_tau`` with the file's training class counts:
+    :meth:`hbeo.model.inference.HBEO.set_prior_tau`; a file without them is refused) through :class:`Predictor`. With ``out``, the answer's JSON (:meth:`Answer.to_json`) is
     written there and, with ``mesh_path``, the completed shape placed in the camera frame
     (:meth:`hbeo.model.inference.HBEO.to_mesh`); both files are complete before either is renamed into
     place, and a bad output path (or one naming an input) fails before any work. DataError names the file
@@ -136,10 +139,10 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     mask = read_mask(mask_path, depth.shape) if mask_path else None
     if mask is not None and not (mask & (depth > 0)).any():
         raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
-    model = HBEO.load(model_path, precision=precision)
+    model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
-                    verify.to_dict() if verify is not None else None)
+                    verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
     data = None
     if mesh_path:
         mesh = model.to_mesh(pred)                    # fails before anything is written

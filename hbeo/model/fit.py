@@ -58,6 +58,12 @@ SHARD_MIX = 8
 #: voxels, weigh most), divided by the root-mean-square coefficient standard deviation so that both
 #: terms have the same size, sqrt(k), for a network that answers the mean coefficients.
 SHAPE_LOSSES = ("coeffs", "voxels")
+#: How training counters the training split's class imbalance (ModelNet10: 9:1 between chair and bathtub;
+#: ``python -m hbeo train --class-balance``, :attr:`hbeo.config.RecipeConfig.class_balance`): ``none`` (the
+#: paper's), ``sampler`` (each epoch draws as many training images as it has, with replacement, image i with
+#: weight 1 / its class's count: every class equally often; :class:`ClassBalanced`) or ``loss`` (the
+#: cross-entropy weighted by inverse class frequency, mean weight 1 over the classes: :func:`class_weights`).
+CLASS_BALANCE = ("none", "sampler", "loss")
 
 
 @dataclass(frozen=True)
@@ -75,6 +81,54 @@ class ViewOptions:
 
 # --------------------------------------------------------------------------- HBEONet for the loop
 
+def class_weights(counts) -> np.ndarray:
+    """(C,) training examples per class -> (C,) float64 weights ``1 / count`` normalized to mean 1 over
+    the classes that have examples (0 for a class with none): the ``loss`` class balance.
+
+    >>> class_weights([1, 3]).tolist()
+    [1.5, 0.5]
+    """
+    counts = np.asarray(counts, np.float64)
+    if counts.ndim != 1 or (counts < 0).any() or not (counts > 0).any():
+        raise ValueError(f"class_weights: counts must be (C,) non-negative with one positive, got {counts.tolist()}")
+    inv = np.where(counts > 0, 1.0 / np.maximum(counts, 1e-300), 0.0)
+    return inv / inv[counts > 0].mean()
+
+
+class ClassBalanced(Dataset):
+    """A training dataset whose epochs draw classes equally often: ``epoch_sampler(seed, epoch)`` gives
+    ``len(base)`` item indices drawn with replacement, item i with weight 1 / (items of its class), from a
+    generator seeded with (seed, epoch) only, so a run and its exact resume draw the same order
+    (:func:`hbeo.model.loop.epoch_order`). Items, ``set_epoch`` and batch reads (``__getitems__``) are
+    ``base``'s. ``labels`` (len(base),): each item's class index."""
+
+    def __init__(self, base: Dataset, labels):
+        labels = np.asarray(labels, np.int64)
+        if labels.shape != (len(base),):
+            raise ValueError(f"ClassBalanced: {len(labels)} labels for {len(base)} items")
+        self.base, self.labels = base, labels
+        self.weights = torch.from_numpy(1.0 / np.bincount(labels)[labels])
+
+    def __len__(self):
+        return len(self.base)
+
+    def __getitem__(self, i):
+        return self.base[i]
+
+    def __getitems__(self, indices) -> list[dict]:
+        if getattr(self.base, "__getitems__", None):
+            return self.base.__getitems__(indices)
+        return [self.base[i] for i in indices]
+
+    def set_epoch(self, epoch: int) -> None:
+        if hasattr(self.base, "set_epoch"):
+            self.base.set_epoch(epoch)
+
+    def epoch_sampler(self, seed: int, epoch: int) -> np.ndarray:
+        gen = torch.Generator().manual_seed(seed * 100_003 + epoch)
+        return torch.multinomial(self.weights, len(self.labels), replacement=True, generator=gen).numpy()
+
+
 @dataclass
 class HBEONetTask:
     """HBEONet for :func:`hbeo.model.loop.train`: the paper's loss (:func:`hbeo.model.network.hbeo_loss`
@@ -82,11 +136,14 @@ class HBEONetTask:
     ``label`` (B,), ``rotation`` (B, 3, 3), ``axis_angle`` (B, 3), ``coeffs`` (B, k) standardized).
     Validation: mean loss parts, accuracy and median geodesic pose error (degrees).
     ``coeff_std`` (k,): the targets' standard deviations, given for the ``voxels`` shape loss
-    (:data:`SHAPE_LOSSES`): the coefficient error is then measured on raw coefficients."""
+    (:data:`SHAPE_LOSSES`): the coefficient error is then measured on raw coefficients.
+    ``class_weights`` (C,): the cross-entropy's class weights (the ``loss`` class balance,
+    :func:`class_weights`); None: unweighted, the paper's."""
 
     net_cfg: NetConfig
     weights: LossWeights = field(default_factory=LossWeights)
     coeff_std: np.ndarray | None = None
+    class_weights: tuple | None = None
     kind = "hbeonet"
     unit = "images"
 
@@ -94,7 +151,12 @@ class HBEONetTask:
         cfg = {"net": self.net_cfg.to_dict(), "loss": asdict(self.weights)}
         if self.coeff_std is not None:          # the paper's loss keeps the configuration it always had
             cfg["shape_loss"] = "voxels"
+        if self.class_weights is not None:      # likewise: unweighted runs keep theirs
+            cfg["class_weights"] = [float(x) for x in self.class_weights]
         return cfg
+
+    def _class_weights(self):
+        return None if self.class_weights is None else torch.as_tensor(self.class_weights, dtype=torch.float32)
 
     def _scale(self, like: torch.Tensor):
         """Divisor of the standardized coefficient error: 1 (paper) or rms(std) / std (raw coefficients,
@@ -110,14 +172,14 @@ class HBEONetTask:
     def loss(self, net: HBEONet, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         out = net(batch["depth"].contiguous(memory_format=torch.channels_last))
         return hbeo_loss(out, batch, self.net_cfg, self.weights, self._scale(out["coeffs"]),
-                         getattr(net, "bin_rotations", None))
+                         getattr(net, "bin_rotations", None), self._class_weights())
 
     def validate(self, net: HBEONet, batches) -> dict[str, float]:
         means, errors = ValidationMeans(), []
         for batch in batches:
             out = net(batch["depth"])
             loss, parts = hbeo_loss(out, batch, self.net_cfg, self.weights, self._scale(out["coeffs"]),
-                                    getattr(net, "bin_rotations", None))
+                                    getattr(net, "bin_rotations", None), self._class_weights())
             means.add(loss, parts, out["logits"], batch["label"])
             R = net.pose_matrix(out["pose"].float()).cpu().numpy()
             errors.append(geodesic_deg(R, batch["rotation"].cpu().numpy()))
@@ -263,7 +325,8 @@ class ModelViewStream(IterableDataset):
 class TrainingData:
     """What :func:`training_data` returns: the two datasets, the render settings and classes of the
     images, the coefficient standardization (mean, std (k,)) the model must undo at prediction
-    time, and the rendered set's manifest (None when the views are rendered on the fly)."""
+    time, the rendered set's manifest (None when the views are rendered on the fly) and ``train_labels``
+    (len(train),) each training item's class index (None: not known)."""
 
     train: Dataset
     val: Dataset
@@ -272,6 +335,7 @@ class TrainingData:
     coeff_mean: np.ndarray
     coeff_std: np.ndarray
     manifest: Manifest | None = None
+    train_labels: np.ndarray | None = None
 
 
 def _shard_coeff_stats(m: Manifest, progress: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -342,7 +406,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
         if augment_roll:
             train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
         return TrainingData(train_set, Subset(data, va_idx), data.manifest.settings, data.manifest.classes,
-                            data.coeff_mean, data.coeff_std, data.manifest)
+                            data.coeff_mean, data.coeff_std, data.manifest, data.labels[tr_idx])
     if source == "shards":
         shards = DepthShards(run.renders("train"), cache_shards=SHARD_MIX)
         m = shards.manifest
@@ -357,7 +421,7 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
             return sampler
         return TrainingData(ModelView(Subset(shards, tr_idx), K, view, mean, std, augment_roll, order),
                             ModelView(Subset(shards, va_idx), K, view, mean, std), m.settings, m.classes,
-                            mean, std, m)
+                            mean, std, m, shards.labels[tr_idx])
     if source == "stream":
         if dataset is None or profile is None or settings is None:
             raise ValueError("training_data: source 'stream' needs dataset, profile and settings")
@@ -374,10 +438,12 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
             val = split_objects(labels, val_fraction, VAL_SEED)
         K = settings.intrinsics
         train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
+        obj_labels = np.array([lab for lab, v in zip(labels, val) if not v], np.int64)    # image i: object i % n
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
                                    replace(settings, views_per_object=prof.data.stream_val_views), sub, shuffle=False)
         return TrainingData(ModelView(train_views, K, view, mean, std, augment_roll),
-                            ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std)
+                            ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std,
+                            train_labels=obj_labels[np.arange(len(train_views)) % len(obj_labels)])
     raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
 
 
@@ -387,7 +453,8 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
 class TrainOptions:
     """How to train a run's model (``python -m hbeo train``'s options), one default per field; ``None``
     means "the profile's": ``epochs``, the recipe (``rotation``, ``augment_roll``, ``shape_loss``:
-    :meth:`hbeo.config.RecipeConfig.fit_kwargs`) and the data source ``data`` (:data:`DATA_SOURCES`).
+    :meth:`hbeo.config.RecipeConfig.fit_kwargs`), the data source ``data`` (:data:`DATA_SOURCES`) and
+    ``class_balance`` (:data:`CLASS_BALANCE`; the profile's :attr:`~hbeo.config.RecipeConfig.class_balance`).
 
     normalization: depth input ``none`` (metres, the paper) or ``center``; view: :class:`ViewOptions`;
     sampler / views / backend: the training views' sampler, views per object and render backend (render
@@ -402,6 +469,7 @@ class TrainOptions:
     augment_roll: bool | None = None
     shape_loss: str | None = None
     data: str | None = None
+    class_balance: str | None = None
     normalization: str = "none"
     view: ViewOptions = field(default_factory=lambda: ViewOptions())
     sampler: str = "so3"
@@ -461,6 +529,13 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
     if shape_loss not in SHAPE_LOSSES:
         raise ValueError(f"unknown shape loss {shape_loss!r}; expected one of {', '.join(SHAPE_LOSSES)}")
+    balance = opts.class_balance or prof.recipe.class_balance
+    if balance not in CLASS_BALANCE:
+        raise ValueError(f"unknown class balance {balance!r}; expected one of {', '.join(CLASS_BALANCE)}")
+    if balance == "sampler" and source == "shards":
+        raise ValueError("class balance 'sampler' draws images in random order across the rendered set; data "
+                         "'shards' reads it a few shards at a time: use data 'memory' or 'stream' (or class "
+                         "balance 'loss')")
     model_path = run.model_file(opts.name)
     sub = ObjectSubspace.load(run.subspace)
     if source != "stream":
@@ -482,16 +557,22 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["source"] = source
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
         how["backend"] = "torch"
+    counts = np.bincount(data.train_labels, minlength=len(data.classes))
+    train_set = data.train
+    if balance == "sampler":                # unbalanced runs keep the settings (and checkpoints) they had
+        how["class_balance"] = "sampler"
+        train_set = ClassBalanced(data.train, data.train_labels)
     tc = TrainConfig(epochs=opts.epochs or prof.recipe.epochs, batch_size=prof.recipe.batch_size, lr=prof.recipe.lr,
                      seed=opts.seed, progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
                      max_steps=opts.max_steps, data=how, checkpoint_every=opts.checkpoint_every,
                      num_workers=opts.loader_workers)
-    task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None)
-    net = train(task, data.train, data.val, run.training(model_path), tc)
+    task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None,
+                       tuple(class_weights(counts)) if balance == "loss" else None)
+    net = train(task, train_set, data.val, run.training(model_path), tc)
     model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
                       "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,
                       "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll,
-                      "shape_loss": shape_loss}
+                      "shape_loss": shape_loss, "class_counts": counts}
     model = HBEO(net.cpu(), sub, data.settings.intrinsics, data.classes, model_settings)
     if not distributed.world().main:
         return model, model_path

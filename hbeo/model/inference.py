@@ -53,6 +53,10 @@ MIN_INPUT_FRACTION = 0.005
 DISTANCE_FACTOR = 1.5
 
 
+def _finite(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and math.isfinite(x)
+
+
 def _build_net(cfg: dict) -> HBEONet:
     """The HBEONet a model file's ``net_cfg`` describes (JSON lists back to tuples)."""
     return HBEONet(NetConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.items()}))
@@ -103,7 +107,7 @@ class HBEO:
     """
 
     def __init__(self, net: HBEONet, subspace: ObjectSubspace, intrinsics: Intrinsics, classes,
-                 settings: ModelSettings | dict | None = None, precision: str = "float32"):
+                 settings: ModelSettings | dict | None = None, precision: str = "float32", prior_tau: float = 0.0):
         # channels_last: oneDNN's fast convolution layout on CPU (convolutions ~1.7x faster at 320x240)
         self.net = net.eval().to(memory_format=torch.channels_last)
         self.subspace = subspace
@@ -117,8 +121,61 @@ class HBEO:
         if tuple(net.cfg.image_size) != (intrinsics.width, intrinsics.height):
             raise ValueError(f"network input {net.cfg.image_size} does not match the camera "
                              f"{intrinsics.width}x{intrinsics.height}")
+        if self.settings.class_counts is not None and len(self.settings.class_counts) != len(self.classes):
+            raise ValueError(f"settings: class_counts has {len(self.settings.class_counts)} entries for "
+                             f"{len(self.classes)} classes")
         self._roll_perms: dict = {}
         self.set_precision(precision)
+        self.set_prior_tau(prior_tau)
+
+    def set_prior_tau(self, tau: float, class_counts=None, source: str | None = None) -> "HBEO":
+        """Prior correction (logit adjustment) of the class answer; returns self.
+
+        The class probabilities become ``softmax(logits - tau * log(prior))``, ``prior`` the training
+        class frequencies (Menon et al., "Long-tail learning via logit adjustment", ICLR 2021): ``tau``
+        0 is the network's own answer (the paper's, the default), 1 divides its probabilities by the
+        training prior (the answer a class-balanced training set would call Bayes-optimal). With
+        ``rolls`` > 1 the roll-averaged probabilities are adjusted the same way. ModelNet10's training
+        split is 9:1 between its largest and smallest class, its test split nearly balanced, and the
+        paper's headline is the class-mean accuracy.
+
+        ``class_counts`` (C,): the training images (or objects) per class; None: the model file's
+        (:attr:`ModelSettings.class_counts`). ValueError when ``tau`` is not in [0, 1], or ``tau`` > 0 and
+        no counts are known or a class has none. ``source`` says where given counts come from (recorded
+        as :attr:`prior_source`; the file's are ``"model file"``)."""
+        if not _finite(tau) or not 0 <= tau <= 1:
+            raise ValueError(f"prior_tau must be a number in [0, 1], got {tau!r}")
+        counts, where = class_counts, source or "given"
+        if counts is None:
+            counts, where = self.settings.class_counts, "model file"
+        log_prior = None
+        if counts is not None:
+            counts = np.asarray(counts, np.float64)
+            if counts.shape != (len(self.classes),):
+                raise ValueError(f"class_counts must have one entry per class ({len(self.classes)}), got shape "
+                                 f"{counts.shape}")
+            if tau > 0 and (counts <= 0).any():
+                empty = [c for c, n in zip(self.classes, counts) if n <= 0]
+                raise ValueError(f"prior correction: no training images of class {', '.join(empty)}")
+            log_prior = np.log(np.maximum(counts, 1e-300) / counts.sum())
+        elif tau > 0:
+            raise ValueError("prior correction needs the training class counts, which this model file does not "
+                             "hold (written before they were recorded); pass class_counts (e.g. "
+                             "hbeo.data.datasets.training_class_counts of its dataset)")
+        self.prior_tau = float(tau)
+        self.prior_source = where if counts is not None else None
+        self.class_counts = None if counts is None else tuple(int(c) for c in counts)
+        self._log_prior = log_prior
+        return self
+
+    def adjust_probabilities(self, probs: np.ndarray) -> np.ndarray:
+        """(B, C) class probabilities -> the same with the prior correction of :meth:`set_prior_tau`
+        applied (renormalized; unchanged at ``prior_tau`` 0)."""
+        if not self.prior_tau:
+            return probs
+        z = np.log(np.maximum(np.asarray(probs, np.float64), 1e-300)) - self.prior_tau * self._log_prior
+        z = np.exp(z - z.max(1, keepdims=True))
+        return (z / z.sum(1, keepdims=True)).astype(np.asarray(probs).dtype)
 
     def set_precision(self, precision: str) -> "HBEO":
         """Run the network in ``float32`` or ``bfloat16`` (:data:`PRECISIONS`); returns self.
@@ -146,21 +203,27 @@ class HBEO:
         return write_model(path, "hbeo", meta, self.net.state_dict(), self.subspace)
 
     @classmethod
-    def load(cls, path, precision: str = "float32") -> "HBEO":
+    def load(cls, path, precision: str = "float32", prior_tau: float = 0.0, class_counts=None,
+             counts_source: str | None = None) -> "HBEO":
         """Read a model file (:func:`hbeo.model.modelfile.read_model`: nothing is unpickled) onto the
         CPU; DataError naming the file on a missing, corrupt, old-format or inconsistent one.
-        ``precision``: see :meth:`set_precision`."""
+        ``precision``: see :meth:`set_precision`; ``prior_tau``, ``class_counts``, ``counts_source``: see
+        :meth:`set_prior_tau`."""
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {tuple(PRECISIONS)}, got {precision!r}")
         mf = read_model(path, "hbeo", _build_net)
         m = mf.meta
         try:
             settings = ModelSettings.from_dict(m["settings"], path)
-            return cls(mf.net, mf.subspace, Intrinsics(**m["intrinsics"]), m["classes"], settings, precision)
+            model = cls(mf.net, mf.subspace, Intrinsics(**m["intrinsics"]), m["classes"], settings, precision)
         except DataError:
             raise
         except (TypeError, ValueError) as err:
             raise DataError(path, f"inconsistent model file ({err})") from None
+        try:
+            return model.set_prior_tau(prior_tau, class_counts, counts_source)
+        except ValueError as err:
+            raise DataError(path, str(err)) from None
 
     # ------------------------------------------------------------ inference
     @torch.inference_mode()
@@ -211,7 +274,7 @@ class HBEO:
                 p = torch.softmax(out["pose"].double(), dim=2)
                 P = P + sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(part))
         t2 = time.perf_counter()
-        probs = (prob_sum / rolls).numpy()
+        probs = self.adjust_probabilities((prob_sum / rolls).numpy())
         pose_probs = None
         if rolls == 1:
             R_virtual = self.net.pose_matrix(pose0.double()).numpy()

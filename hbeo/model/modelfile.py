@@ -123,6 +123,11 @@ class ModelSettings:
         trained with random camera rolls (False: before the option existed, no rolls).
     ``shape_loss``
         the shape term trained (``"coeffs"``: before the option existed, the coefficient loss).
+    ``class_counts``
+        (C,) training images per class, in the order of the model's classes (the images one training
+        epoch draws from, before any class balancing), or None (not recorded: files written before
+        the field existed). The training class prior of the prior correction
+        (:meth:`hbeo.model.inference.HBEO.set_prior_tau`).
 
     Frozen: a model's settings are what its file says. :meth:`from_dict` / :meth:`to_dict` are the
     file's reader and writer."""
@@ -136,6 +141,7 @@ class ModelSettings:
     profile: str | None = None
     augment_roll: bool = False
     shape_loss: str = "coeffs"
+    class_counts: tuple | None = None
 
     def __post_init__(self):
         def bad(name, want, value):
@@ -165,6 +171,12 @@ class ModelSettings:
             bad("profile", "a profile name or null", self.profile)
         if not isinstance(self.shape_loss, str):
             bad("shape_loss", "a shape loss name", self.shape_loss)
+        if self.class_counts is not None:
+            counts = self.class_counts.tolist() if isinstance(self.class_counts, np.ndarray) else self.class_counts
+            if (not isinstance(counts, (list, tuple)) or not counts
+                    or not all(_number(v) and math.isfinite(v) and float(v) == int(v) and v >= 0 for v in counts) or not sum(counts) > 0):
+                bad("class_counts", "a list of non-negative whole numbers with a positive sum, or null", counts)
+            set_(self, "class_counts", tuple(int(v) for v in counts))
 
     @classmethod
     def from_dict(cls, data, source=None) -> "ModelSettings":

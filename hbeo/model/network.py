@@ -170,18 +170,21 @@ class LossWeights:
 
 
 def hbeo_loss(out: dict, batch: dict, cfg: NetConfig, w: LossWeights | None = None,
-              coeff_scale: torch.Tensor | float = 1.0, grid: torch.Tensor | None = None
-              ) -> tuple[torch.Tensor, dict[str, float]]:
+              coeff_scale: torch.Tensor | float = 1.0, grid: torch.Tensor | None = None,
+              class_weights: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """Total loss and its parts for one batch.
 
     The pose term is the L2 norm of the difference between predicted and true pose encodings
     (axis-angle vectors, or 6-D vectors for the 6-D option), or for ``bins`` the cross-entropy
     against :func:`bin_targets` on ``grid`` (N, 3, 3); the coefficient term the L2 norm
     of the coefficient difference divided by ``coeff_scale`` (per-dimension scale, so that no
-    dimension dominates); both averaged over the batch.
+    dimension dominates); both averaged over the batch. ``class_weights`` (C,): the cross-entropy
+    weighted by class (torch's weighted mean: sum_i w[y_i] CE_i / sum_i w[y_i]); None: the paper's.
     """
     w = w or LossWeights()
-    ce = F.cross_entropy(out["logits"], batch["label"])
+    if class_weights is not None:
+        class_weights = class_weights.to(out["logits"].device, out["logits"].dtype)
+    ce = F.cross_entropy(out["logits"], batch["label"], weight=class_weights)
     if cfg.rotation == "bins":
         if grid is None:
             raise ValueError("rotation 'bins' needs the network's grid (HBEONet.bin_rotations)")
