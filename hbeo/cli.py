@@ -124,7 +124,8 @@ def cmd_render(args) -> int:
 
 def cmd_train(args) -> int:
     from hbeo.model import distributed
-    from hbeo.model.fit import TrainOptions, ViewOptions, parse_loss_weights
+    from hbeo.model.fit import TrainOptions, parse_loss_weights
+    from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),

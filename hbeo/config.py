@@ -77,7 +77,7 @@ class RecipeConfig:
     rotation: str = "axis_angle"
     augment_roll: bool = False
     shape_loss: str = "coeffs"
-    #: How training counters the class imbalance (``hbeo.model.fit.CLASS_BALANCE``): ``none`` (the paper's),
+    #: How training counters the class imbalance (``hbeo.model.trainingdata.CLASS_BALANCE``): ``none`` (the paper's),
     #: ``sampler`` (classes drawn uniformly) or ``loss`` (inverse-frequency weighted cross-entropy).
     class_balance: str = "none"
     #: Epochs of each option compared in notebook 04 (None: ``epochs``); every variant, the run's recipe

@@ -8,7 +8,8 @@ import torch.nn.functional as F
 import resume_job as job
 from hbeo.errors import DataError
 from hbeo.model.distributed import weights_sha256
-from hbeo.model.fit import ClassBalanced, HBEONetTask, class_weights
+from hbeo.model.fit import HBEONetTask
+from hbeo.model.trainingdata import ClassBalanced, class_weights
 from hbeo.model.inference import HBEO
 from hbeo.model.loop import TrainConfig, epoch_order, train
 from hbeo.model.modelfile import ModelSettings

@@ -188,7 +188,7 @@ def test_evaluate_on_the_validation_split_scores_held_out_training_objects_and_l
     import pandas as pd
     from hbeo import config
     from hbeo.data import datasets
-    from hbeo.model.fit import training_data, ViewOptions
+    from hbeo.model.trainingdata import training_data, ViewOptions
     from hbeo.rundir import RunDir
     rd = copy_run(ci_model.parent, tmp_path / "run")
     for seed in (0, 1):

@@ -128,7 +128,7 @@ def test_training_data_holds_out_the_grouped_validation_records(ci_run, ci_grids
     a grouped profile, and never splits a group; a mesh dataset without grids is refused by name."""
     from hbeo import config
     from hbeo.data import datasets
-    from hbeo.model.fit import ViewOptions, training_data
+    from hbeo.model.trainingdata import ViewOptions, training_data
     prof = config.get_profile("ci", val_split="grouped", twin_iou=0.6)
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
     data = training_data(ci_run, ViewOptions(), progress=False, val_split="grouped", twin_iou=0.6)

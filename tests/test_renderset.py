@@ -228,7 +228,7 @@ def test_bad_inputs(ds, tmp_path):
     with pytest.raises(ValueError, match="views_per_object"):
         RenderSettings(views_per_object=0)
     with pytest.raises(ValueError, match="sampler"):
-        RenderSettings(sampler="sphere")
+        RenderSettings(sampler="cylinder")
     with pytest.raises(ValueError, match="image_size"):
         RenderSettings(image_size=(0, 24))
     with pytest.raises(ValueError, match="backend"):
@@ -253,7 +253,9 @@ def test_bad_inputs(ds, tmp_path):
         render_set(ds, [broken], "test", tmp_path / "c", SMALL, progress=False)
     with pytest.raises(DataError, match="no rendered set manifest"):
         DepthShards(tmp_path / "c")
-    assert cli.main(["render", "--profile", "ci", "--out", str(tmp_path / "e"), "--views", "0"]) == 2
+    with pytest.raises(SystemExit) as exit_:                 # refused while the command line is read
+        cli.main(["render", "--profile", "ci", "--out", str(tmp_path / "e"), "--views", "0"])
+    assert exit_.value.code == 2 and not (tmp_path / "e").exists()
 
 
 def test_settings_from_profile_round_trip():
@@ -267,17 +269,17 @@ def test_settings_from_profile_round_trip():
 def test_view_arrays_keep_views_that_show_nothing(rendered, monkeypatch):
     """A view showing nothing (degenerate grids seen edge-on do that) stays an empty image with its
     pose when views are re-centred, instead of stopping the training set."""
-    from hbeo.model import fit
-    real = fit.load_shard
+    from hbeo.model import trainingdata
+    real = trainingdata.load_shard
 
     def one_empty(path):
         sh = real(path)
         sh["depth"][0] = 0
         return sh
 
-    monkeypatch.setattr(fit, "load_shard", one_empty)
-    plain = fit.ViewArrays(rendered, fit.ViewOptions(), progress=False)
-    turned = fit.ViewArrays(rendered, fit.ViewOptions(recenter=True, ref_distance=1.7), progress=False)
+    monkeypatch.setattr(trainingdata, "load_shard", one_empty)
+    plain = trainingdata.ViewArrays(rendered, trainingdata.ViewOptions(), progress=False)
+    turned = trainingdata.ViewArrays(rendered, trainingdata.ViewOptions(recenter=True, ref_distance=1.7), progress=False)
     assert not plain.depth[0].any() and not turned.depth[0].any()
     assert np.array_equal(turned.rotation[0], plain.rotation[0])
     assert turned.depth[1].any() and not np.array_equal(turned.rotation[1], plain.rotation[1])

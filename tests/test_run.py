@@ -7,7 +7,8 @@ import pytest
 from hbeo import cli, config
 from hbeo.config import Profile
 from hbeo.data import datasets
-from hbeo.model.fit import TrainOptions, ViewOptions
+from hbeo.model.fit import TrainOptions
+from hbeo.model.trainingdata import ViewOptions
 from hbeo.run import Run, Trained
 from hbeo.rundir import DEFAULT_MODEL
 

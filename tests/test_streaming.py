@@ -8,7 +8,7 @@ import torch
 
 from hbeo import config
 from hbeo.data import datasets
-from hbeo.model.fit import ViewOptions, training_data
+from hbeo.model.trainingdata import ViewOptions, training_data
 from hbeo.model.loop import TrainConfig, data_loader
 from hbeo.render.views import RenderSettings
 
@@ -67,7 +67,7 @@ def _loads(shard_sequence, cache: int) -> int:
 
 
 def test_shard_order_depends_on_seed_and_epoch_only(sources):
-    from hbeo.model.fit import SHARD_MIX
+    from hbeo.model.trainingdata import SHARD_MIX
     sh = sources["shards"].train
     orders = [list(sh.epoch_sampler(0, e)) for e in (0, 0, 1)]
     assert orders[0] == orders[1] != orders[2]

@@ -317,7 +317,7 @@ def select(dataset: Dataset, split: str, profile=None) -> list[ObjectRecord]:
 
 #: The validation protocol: this fraction of each class's training objects (at least one of a
 #: class with two or more), drawn with this seed, is held out of training (HBEONet's
-#: :func:`hbeo.model.fit.training_data`) and is where configurations, epochs and thresholds are
+#: :func:`hbeo.model.trainingdata.training_data`) and is where configurations, epochs and thresholds are
 #: chosen (``python -m hbeo evaluate --split val``); the test split is for reporting only.
 VAL_FRACTION, VAL_SEED = 0.1, 0
 

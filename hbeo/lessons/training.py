@@ -92,7 +92,8 @@ def option_variants(run, epochs: int | None = None, progress: bool = True) -> pd
     score each on the validation objects (:func:`hbeo.evaluation.protocol.evaluate_validation`; the
     test split is not used to compare options): accuracy, median pose error (raw and modulo
     symmetry), share within 30 degrees, IoU and the share of empty completions."""
-    from hbeo.model.fit import TrainOptions, ViewOptions
+    from hbeo.model.fit import TrainOptions
+    from hbeo.model.trainingdata import ViewOptions
     from hbeo.evaluation.protocol import evaluate_validation
     prof = run.profile
     n = epochs or prof.recipe.option_epochs or prof.recipe.epochs

@@ -1,7 +1,8 @@
 """HBEONet and the HBEO model (Sec. III-B/C): network, the training loop, the model file, prediction.
 
 Owns the network (:mod:`~hbeo.model.network`), the one training loop used by every network of the
-project (:mod:`~hbeo.model.loop`), fitting HBEO from a run folder (:mod:`~hbeo.model.fit`), the
+project (:mod:`~hbeo.model.loop`), fitting HBEO from a run folder (:mod:`~hbeo.model.fit`), training images as
+torch datasets (:mod:`~hbeo.model.trainingdata`), the
 exact camera-roll augmentation (:mod:`~hbeo.model.augment`), bringing a user's depth image into the
 model's camera (:mod:`~hbeo.model.preprocess`), the safe model file and inference
 (:mod:`~hbeo.model.inference`, :mod:`~hbeo.model.modelfile`), reading a user's depth image

@@ -2,55 +2,37 @@
 
 :func:`fit_model` checks that the run's rendered training set (``RunDir.renders("train")``,
 notebook 03) was made with the run's subspace (``RunDir.subspace``, notebook 02), gets the
-training and validation data from :func:`training_data`, trains HBEONet through the project's
+training and validation data from :func:`~hbeo.model.trainingdata.training_data`, trains HBEONet through the project's
 loop (:func:`hbeo.model.loop.train` with :class:`HBEONetTask`) and writes the model file
 (``RunDir.model_file``).
 
-:func:`training_data` is the one place training images become datasets, from one of three
-sources (:data:`DATA_SOURCES`): the rendered set held in memory (:class:`ViewArrays`), the
-rendered set read shard by shard, or views rendered on the fly. Every source gives the same items:
-views brought into the model's input view exactly as :meth:`hbeo.model.inference.HBEO.predict`
-will (:mod:`hbeo.model.preprocess`), standardized coefficient targets, optionally rolled, split by
-object into training and validation; ``memory`` does that once at load (:class:`ViewArrays`), the
-others item by item (:func:`model_item` in :class:`ModelView`; :class:`ModelViewStream` for
-validation views rendered in order), so their memory does not grow with the number of images.
+The training images come from :func:`hbeo.model.trainingdata.training_data` (memory, shards or stream).
 
 May import: foundation, data, subspace, render, and the other hbeo.model modules.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset, IterableDataset, Subset
-from tqdm.auto import tqdm
 
 from hbeo.errors import DataError
-from hbeo.limits import check_in_memory
-from hbeo.data import datasets
-from hbeo.data.datasets import VAL_SEED
-from hbeo.data.gridset import run_gridsets
-from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
-from hbeo.model.preprocess import to_model_view
 from hbeo.model import distributed
 from hbeo.model.loop import TrainConfig, ValidationMeans, train
-from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
-                                  split_objects, unstack)
 from hbeo.render.renderset import Manifest, subspace_info
 from hbeo.render.views import RenderSettings
-from hbeo.rotations import geodesic_deg, matrix_to_axis_angle
+from hbeo.rotations import geodesic_deg
 from hbeo.rundir import DEFAULT_MODEL, RunDir
 from hbeo.subspace.basis import ObjectSubspace
+from hbeo.model.trainingdata import (CLASS_BALANCE, DATA_SOURCES, ClassBalanced, ViewOptions, class_weights,
+                                    training_data)
 
-#: Where training images come from (:func:`training_data`; ``python -m hbeo train --data``).
-DATA_SOURCES = ("memory", "shards", "stream")
-#: ``shards``: shards shuffled together (and held in memory) at a time (:class:`ShardSampler`).
-SHARD_MIX = 8
+
 #: What the shape term of the loss measures (``python -m hbeo train --shape-loss``): ``coeffs`` (the
 #: paper: the L2 norm of the standardized coefficient error, every coefficient weighted alike) or
 #: ``voxels`` (the L2 norm of the completed grid's occupancy error: the basis is orthonormal, so
@@ -58,75 +40,14 @@ SHARD_MIX = 8
 #: voxels, weigh most), divided by the root-mean-square coefficient standard deviation so that both
 #: terms have the same size, sqrt(k), for a network that answers the mean coefficients.
 SHAPE_LOSSES = ("coeffs", "voxels")
-#: How training counters the training split's class imbalance (ModelNet10: 9:1 between chair and bathtub;
-#: ``python -m hbeo train --class-balance``, :attr:`hbeo.config.RecipeConfig.class_balance`): ``none`` (the
-#: paper's), ``sampler`` (each epoch draws as many training images as it has, with replacement, image i with
-#: weight 1 / its class's count: every class equally often; :class:`ClassBalanced`) or ``loss`` (the
-#: cross-entropy weighted by inverse class frequency, mean weight 1 over the classes: :func:`class_weights`).
-CLASS_BALANCE = ("none", "sampler", "loss")
 
 
-@dataclass(frozen=True)
-class ViewOptions:
-    """How images enter the network (the same at training and prediction time).
-
-    recenter: turn each view to look straight at the object; ref_distance: zoom and shift so the
-    object centre appears at this many metres (distance-insensitive input). The paper does
-    neither (its renderings are centred already).
-    """
-
-    recenter: bool = False
-    ref_distance: float | None = None
 
 
 # --------------------------------------------------------------------------- HBEONet for the loop
 
-def class_weights(counts) -> np.ndarray:
-    """(C,) training examples per class -> (C,) float64 weights ``1 / count`` normalized to mean 1 over
-    the classes that have examples (0 for a class with none): the ``loss`` class balance.
-
-    >>> class_weights([1, 3]).tolist()
-    [1.5, 0.5]
-    """
-    counts = np.asarray(counts, np.float64)
-    if counts.ndim != 1 or (counts < 0).any() or not (counts > 0).any():
-        raise ValueError(f"class_weights: counts must be (C,) non-negative with one positive, got {counts.tolist()}")
-    inv = np.where(counts > 0, 1.0 / np.maximum(counts, 1e-300), 0.0)
-    return inv / inv[counts > 0].mean()
 
 
-class ClassBalanced(Dataset):
-    """A training dataset whose epochs draw classes equally often: ``epoch_sampler(seed, epoch)`` gives
-    ``len(base)`` item indices drawn with replacement, item i with weight 1 / (items of its class), from a
-    generator seeded with (seed, epoch) only, so a run and its exact resume draw the same order
-    (:func:`hbeo.model.loop.epoch_order`). Items, ``set_epoch`` and batch reads (``__getitems__``) are
-    ``base``'s. ``labels`` (len(base),): each item's class index."""
-
-    def __init__(self, base: Dataset, labels):
-        labels = np.asarray(labels, np.int64)
-        if labels.shape != (len(base),):
-            raise ValueError(f"ClassBalanced: {len(labels)} labels for {len(base)} items")
-        self.base, self.labels = base, labels
-        self.weights = torch.from_numpy(1.0 / np.bincount(labels)[labels])
-
-    def __len__(self):
-        return len(self.base)
-
-    def __getitem__(self, i):
-        return self.base[i]
-
-    def __getitems__(self, indices) -> list[dict]:
-        if getattr(self.base, "__getitems__", None):
-            return self.base.__getitems__(indices)
-        return [self.base[i] for i in indices]
-
-    def set_epoch(self, epoch: int) -> None:
-        if hasattr(self.base, "set_epoch"):
-            self.base.set_epoch(epoch)
-
-    def epoch_sampler(self, seed: int, epoch: int) -> np.ndarray:
-        gen = torch.Generator().manual_seed(seed * 100_003 + epoch)
-        return torch.multinomial(self.weights, len(self.labels), replacement=True, generator=gen).numpy()
 
 
 @dataclass
@@ -190,261 +111,22 @@ class HBEONetTask:
 
 # --------------------------------------------------------------------------- the data
 
-class ViewArrays(Dataset):
-    """A rendered set held in memory, in the model's input view. Items: ``depth`` (1, H, W) float32
-    metres, ``label``, ``rotation`` (3, 3) and ``axis_angle`` (3,) in the input view's camera,
-    ``coeffs`` (k,) standardized with ``coeff_mean`` / ``coeff_std``, ``object_index``."""
-
-    def __init__(self, manifest, opts: ViewOptions, coeff_mean=None, coeff_std=None, progress=True):
-        m = Manifest.load(manifest)
-        K = m.settings.intrinsics
-        check_in_memory(m.n_images, m.settings.image_size, m.coeffs_dim or 0, f"{m.root}")   # before loading
-        depth, rot, lab, coeffs, objs = [], [], [], [], []
-        for path in tqdm(m.shard_paths(), desc="load views", disable=not progress):
-            sh = load_shard(path)
-            d, R = sh["depth"].astype(np.float32), sh["rotation"].astype(np.float64)
-            if opts.recenter or opts.ref_distance:
-                for i in np.flatnonzero((d > 0).reshape(len(d), -1).any(1)):
-                    # views that show nothing (a handful of degenerate grids seen edge-on) stay empty
-                    v = to_model_view(d[i], K, K, recenter=opts.recenter, ref_distance=opts.ref_distance)
-                    d[i], R[i] = v.depth, v.Q.T @ R[i]
-            depth.append(d.astype(np.float16))
-            rot.append(R.astype(np.float32))
-            lab.append(sh["label"])
-            objs.append(sh["object_index"])
-            if "coeffs" not in sh:
-                raise DataError(m.root, "the rendered set has no subspace coefficients; render it with the "
-                                        "run's subspace (notebook 02 first)")
-            coeffs.append(sh["coeffs"])
-        self.depth, self.rotation = np.concatenate(depth), np.concatenate(rot)
-        self.axis_angle = matrix_to_axis_angle(self.rotation).astype(np.float32)
-        self.labels, self.object_index = np.concatenate(lab), np.concatenate(objs)
-        self.coeffs_raw = np.concatenate(coeffs).astype(np.float32)
-        self.coeff_mean = self.coeffs_raw.mean(0) if coeff_mean is None else np.asarray(coeff_mean, np.float32)
-        self.coeff_std = (self.coeffs_raw.std(0) + 1e-6) if coeff_std is None else np.asarray(coeff_std, np.float32)
-        self.coeffs = ((self.coeffs_raw - self.coeff_mean) / self.coeff_std).astype(np.float32)
-        self.manifest = m
-
-    def __len__(self):
-        return len(self.depth)
-
-    def __getitem__(self, i):
-        return {"depth": torch.from_numpy(self.depth[i].astype(np.float32))[None], "label": int(self.labels[i]),
-                "rotation": torch.from_numpy(self.rotation[i]), "axis_angle": torch.from_numpy(self.axis_angle[i]),
-                "coeffs": torch.from_numpy(self.coeffs[i]), "object_index": int(self.object_index[i])}
 
 
-def model_item(raw: dict, K, opts: ViewOptions, coeff_mean, coeff_std) -> dict:
-    """One view as a rendered set gives it (a :class:`DepthShards` / :class:`StreamingDepth` item)
-    -> the item :class:`ViewArrays` holds for it: the same arithmetic, so the three data sources
-    feed the loop the same items."""
-    d, R = raw["depth"][0].numpy().astype(np.float32), raw["rotation"].numpy().astype(np.float64)
-    if (opts.recenter or opts.ref_distance) and (d > 0).any():
-        v = to_model_view(d, K, K, recenter=opts.recenter, ref_distance=opts.ref_distance)
-        d, R = np.asarray(v.depth, np.float32), v.Q.T @ R
-    R = R.astype(np.float32)
-    coeffs = ((raw["coeffs"].numpy().astype(np.float32) - coeff_mean) / coeff_std).astype(np.float32)
-    return {"depth": torch.from_numpy(d.astype(np.float16).astype(np.float32))[None], "label": int(raw["label"]),
-            "rotation": torch.from_numpy(R), "axis_angle": torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32)),
-            "coeffs": torch.from_numpy(coeffs), "object_index": int(raw["object_index"])}
 
 
-def model_batch(raw: dict, K, opts: ViewOptions, coeff_mean, coeff_std) -> dict:
-    """:func:`model_item` for a whole batch (the stacked items of :meth:`FreshPoses.render_batch`, depth
-    on the training device), the same arithmetic with the depth left where it is; views that must be
-    re-centred or zoomed go through :func:`model_item` one by one (on the CPU)."""
-    if opts.recenter or opts.ref_distance:
-        items = [model_item({k: v[i].cpu() if k == "depth" else v[i] for k, v in raw.items()}, K, opts, coeff_mean,
-                            coeff_std) for i in range(len(raw["label"]))]
-        return {k: torch.stack([torch.as_tensor(it[k]) for it in items]) for k in items[0]}
-    R = raw["rotation"].numpy().astype(np.float32)
-    coeffs = ((raw["coeffs"].numpy().astype(np.float32) - coeff_mean) / coeff_std).astype(np.float32)
-    return {"depth": raw["depth"].half().float(), "label": raw["label"], "rotation": torch.from_numpy(R),
-            "axis_angle": torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32)),
-            "coeffs": torch.from_numpy(coeffs), "object_index": raw["object_index"]}
 
 
-class ModelView(Dataset):
-    """A map-style view dataset (e.g. a :class:`DepthShards` subset) read lazily and brought into
-    the model's input view item by item (:func:`model_item`), rolled if ``roll``; ``order(seed,
-    epoch)`` gives each epoch's sampler (:func:`hbeo.model.loop.data_loader`). A base that renders
-    whole batches (:class:`FreshPoses` with render backend ``torch``) is read a batch at a time
-    (:meth:`__getitems__`, :func:`model_batch`), each roll then rendered, not resampled."""
-
-    def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False, order=None):
-        self.base, self.K, self.opts, self.roll, self.order = base, K, opts, roll, order
-        self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
-
-    def __len__(self):
-        return len(self.base)
-
-    def __getitem__(self, i):
-        if getattr(self.base, "renders_batches", False):
-            return self.__getitems__([i])[0]
-        item = model_item(self.base[i], self.K, self.opts, self.coeff_mean, self.coeff_std)
-        return roll_item(item, self.K) if self.roll else item
-
-    def __getitems__(self, indices) -> list[dict]:
-        if not getattr(self.base, "renders_batches", False):
-            return [self[i] for i in indices]
-        raw = self.base.render_batch(indices, roll=self.roll)
-        return unstack(model_batch(raw, self.K, self.opts, self.coeff_mean, self.coeff_std))
-
-    def set_epoch(self, epoch: int) -> None:
-        if hasattr(self.base, "set_epoch"):
-            self.base.set_epoch(epoch)
-
-    def epoch_sampler(self, seed: int, epoch: int):
-        if self.order is not None:
-            return self.order(seed, epoch)
-        if hasattr(self.base, "epoch_sampler"):
-            return self.base.epoch_sampler(seed, epoch)
-        return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
 
 
-class ModelViewStream(IterableDataset):
-    """:class:`ModelView` for an iterable view dataset (validation views rendered on the fly, in order)."""
-
-    def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False):
-        self.base, self.K, self.opts, self.roll = base, K, opts, roll
-        self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
-
-    def set_epoch(self, epoch: int) -> None:
-        self.base.set_epoch(epoch)
-
-    def __len__(self):
-        return len(self.base)
-
-    def __iter__(self):
-        for raw in self.base:
-            item = model_item(raw, self.K, self.opts, self.coeff_mean, self.coeff_std)
-            yield roll_item(item, self.K) if self.roll else item
 
 
-@dataclass
-class TrainingData:
-    """What :func:`training_data` returns: the two datasets, the render settings and classes of the
-    images, the coefficient standardization (mean, std (k,)) the model must undo at prediction
-    time, the rendered set's manifest (None when the views are rendered on the fly) and ``train_labels``
-    (len(train),) each training item's class index (None: not known)."""
-
-    train: Dataset
-    val: Dataset
-    settings: RenderSettings
-    classes: tuple[str, ...]
-    coeff_mean: np.ndarray
-    coeff_std: np.ndarray
-    manifest: Manifest | None = None
-    train_labels: np.ndarray | None = None
 
 
-def _shard_coeff_stats(m: Manifest, progress: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and std (+1e-6) of every image's coefficients, read shard by shard (float64 sums)."""
-    n, s1, s2 = 0, 0.0, 0.0
-    for path in tqdm(m.shard_paths(), desc="coefficient statistics", disable=not progress):
-        with np.load(path, allow_pickle=False) as z:
-            if "coeffs" not in z.files:
-                raise DataError(m.root, "the rendered set has no subspace coefficients; render it with the "
-                                        "run's subspace (notebook 02 first)")
-            c = z["coeffs"].astype(np.float64)
-        n, s1, s2 = n + len(c), s1 + c.sum(0), s2 + (c * c).sum(0)
-    mean = s1 / n
-    return mean.astype(np.float32), (np.sqrt(np.maximum(s2 / n - mean * mean, 0)) + 1e-6).astype(np.float32)
 
 
-def _val_mask(run: RunDir, labels, ids, val_fraction: float, val_split: str, twin_iou: float | None,
-              gridset=None):
-    """The validation objects among a run's training objects (``labels``, ``ids``) by ``val_split``
-    (:func:`hbeo.data.datasets.validation_mask`); None for ``object`` (the callers' own rule, the same).
-    ``grouped`` takes the objects' grids from ``gridset`` or the run's training grid set by id."""
-    if val_split == "object":
-        return None
-    from hbeo.data.gridset import GridSet
-    if gridset is None:
-        if not run.grids("train").exists():
-            raise DataError(run.grids("train"), "val_split 'grouped' needs the run's training grids (notebook 01)")
-        gridset = GridSet.load(run.grids("train"))
-    rows = {str(i): k for k, i in enumerate(gridset.ids)}
-    grids = np.zeros((len(ids),) + gridset.grids.shape[1:], bool)
-    for k, i in enumerate(ids):
-        if str(i) in rows:
-            grids[k] = gridset.grids[rows[str(i)]]
-    return datasets.validation_mask(labels, val_fraction, VAL_SEED, val_split, grids, twin_iou)
 
 
-def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_roll: bool = False,
-                  progress: bool = True, source: str = "memory", dataset=None, profile=None,
-                  settings: RenderSettings | None = None, val_split: str = "object",
-                  twin_iou: float | None = None) -> TrainingData:
-    """The run's training images as (training, validation) datasets of the same items, split by
-    object (:func:`hbeo.render.torch_datasets.split_by_object` with the fixed
-    :data:`hbeo.data.datasets.VAL_SEED`, whatever the training seed: with the default
-    ``val_fraction`` the validation objects are :func:`hbeo.data.datasets.validation_records`, on
-    which ``evaluate --split val`` scores; ``val_split`` "grouped" holds out whole groups of near-duplicates
-    instead, IoU >= ``twin_iou``: :func:`hbeo.data.datasets.validation_mask`); ``augment_roll`` rolls every training
-    view by a random angle each time it is read (:mod:`hbeo.model.augment`). ``source``:
-
-    ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
-    ``shards``  the rendered training set read lazily, :data:`SHARD_MIX` shards in memory at a time,
-                shuffled by blocks of that many shards (:class:`ShardSampler`); coefficients standardized with
-                the statistics of every image (as ``memory``, up to rounding).
-    ``stream``  rendered on the fly (:class:`FreshPoses`, a fresh pose per object per pass, any
-                image renderable alone) from ``dataset``'s (a loaded Dataset) training records of
-                ``profile`` (a Profile) with render ``settings``; validation: ``profile.stream_val_views`` views of
-                each validation object, rendered once; coefficients standardized with the statistics of
-                the run's training grids. Needs the run's subspace, renders nothing first. With render
-                ``settings.backend`` "torch" (grid datasets only) each training batch is rendered at
-                once on the training device from the objects' grids kept there (:meth:`FreshPoses.render_batch`).
-    Memory use of ``shards`` and ``stream`` does not grow with the number of images."""
-    run = RunDir.of(run)
-    if source == "memory":
-        data = ViewArrays(run.renders("train"), view, progress=progress)
-        m = data.manifest
-        mask = _val_mask(run, m.object_labels, m.object_ids, val_fraction, val_split, twin_iou)
-        tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED, mask)
-        train_set = Subset(data, tr_idx)
-        if augment_roll:
-            train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
-        return TrainingData(train_set, Subset(data, va_idx), data.manifest.settings, data.manifest.classes,
-                            data.coeff_mean, data.coeff_std, data.manifest, data.labels[tr_idx])
-    if source == "shards":
-        shards = DepthShards(run.renders("train"), cache_shards=SHARD_MIX)
-        m = shards.manifest
-        mean, std = _shard_coeff_stats(m, progress)
-        mask = _val_mask(run, m.object_labels, m.object_ids, val_fraction, val_split, twin_iou)
-        tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED, mask)
-        K = m.settings.intrinsics
-
-        def order(seed_, epoch):
-            sampler = ShardSampler(shards, tr_idx, seed=seed_, mix=SHARD_MIX)
-            sampler.set_epoch(epoch)
-            return sampler
-        return TrainingData(ModelView(Subset(shards, tr_idx), K, view, mean, std, augment_roll, order),
-                            ModelView(Subset(shards, va_idx), K, view, mean, std), m.settings, m.classes,
-                            mean, std, m, shards.labels[tr_idx])
-    if source == "stream":
-        if dataset is None or profile is None or settings is None:
-            raise ValueError("training_data: source 'stream' needs dataset, profile and settings")
-        prof, ds = profile, dataset
-        sub = ObjectSubspace.load(run.subspace)
-        gridset = run_gridsets(run, ds, prof, progress=progress)["train"]
-        grids = gridset.grids
-        coeffs = np.concatenate([sub.project(grids[i:i + 512]) for i in range(0, len(grids), 512)])
-        mean, std = coeffs.mean(0), coeffs.std(0) + 1e-6
-        records = datasets.select(ds, "train", prof)
-        labels = [ds.classes.index(r.cls) for r in records]
-        val = _val_mask(run, labels, [r.id for r in records], val_fraction, val_split, twin_iou, gridset)
-        if val is None:
-            val = split_objects(labels, val_fraction, VAL_SEED)
-        K = settings.intrinsics
-        train_views = FreshPoses(ds, [r for r, v in zip(records, val) if not v], "train", settings, sub)
-        obj_labels = np.array([lab for lab, v in zip(labels, val) if not v], np.int64)    # image i: object i % n
-        val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
-                                   replace(settings, views_per_object=prof.data.stream_val_views), sub, shuffle=False)
-        return TrainingData(ModelView(train_views, K, view, mean, std, augment_roll),
-                            ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std,
-                            train_labels=obj_labels[np.arange(len(train_views)) % len(obj_labels)])
-    raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
 
 
 # --------------------------------------------------------------------------- run folder -> model file
