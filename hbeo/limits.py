@@ -71,7 +71,7 @@ def _count(n: int) -> str:
 
 
 def available_memory() -> int:
-    """Bytes of memory available to new allocations now: psutil's ``available`` when installed, else
+    """Bytes of memory available to new allocations now: psutil's ``available`` (a dependency), else
     ``MemAvailable`` of /proc/meminfo, else the RLIMIT_AS soft limit, else 8 GiB (a guess), whichever of
     these and the address-space limit (``ulimit -v``) is smaller."""
     avail = None
