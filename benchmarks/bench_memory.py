@@ -73,7 +73,7 @@ def main() -> None:
     cases.append(("evaluate --views 100000000 (refused)",
                   ["evaluate", "--model", str(MODEL), "--dataset", "procedural", "--views", "100000000",
                    "--out", str(work / "e.json"), "--quiet"]))
-    print(f"| command | exit | seconds | peak RSS (MB) |\n| --- | ---: | ---: | ---: |")
+    print("| command | exit | seconds | peak RSS (MB) |\n| --- | ---: | ---: | ---: |")
     for name, args in cases:
         code, s, rss, err = measure(args, env)
         print(f"| `{name}` | {code} | {s:.1f} | {rss:.0f} |" + (f" {err[:160]}" if err else ""), flush=True)

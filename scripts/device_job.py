@@ -95,14 +95,6 @@ def summary(m: dict) -> dict:
             "iou": m.get("completion", {}).get("iou")}
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def round_weights_bf16(path: Path) -> None:
     """Round the model file's float32 weights to the nearest bfloat16 values, in place (atomically), still
     stored as float32: the low 16 bits become zero, so the packed file compresses to about half and the
@@ -122,7 +114,8 @@ def worker(args) -> int:
     """The background process: train (resuming from the checkpoint), evaluate, write lease.json."""
     from hbeo.evaluation import protocol
     from hbeo.model.fit import TrainOptions
-    from hbeo.model.loop import CHECKPOINT, load_checkpoint
+    from hbeo.model.loop import load_checkpoint
+    from hbeo.storage import sha256_file
     from hbeo.run import Run
     run = Run.open(args.profile, args.dataset, args.run)
     state_path = run.path / STATE
@@ -145,7 +138,7 @@ def worker(args) -> int:
         _write_json(state_path, state)
     prov = run.dir.training_provenance(run.dir.model)
     if args.round_bf16 and not state.get("weights_rounded_to"):
-        state["unrounded_model_sha256"] = _sha256(run.dir.model)
+        state["unrounded_model_sha256"] = sha256_file(run.dir.model)
         round_weights_bf16(run.dir.model)
         state["weights_rounded_to"] = "bfloat16"
         _write_json(state_path, state)

@@ -239,9 +239,7 @@ class HBEO:
         ``rolls`` above :data:`hbeo.limits.MAX_ROLLS` is refused (:class:`hbeo.limits.ResourceError`).
         """
         t0 = time.perf_counter()
-        if isinstance(rolls, bool) or int(rolls) != rolls or rolls < 1:
-            raise ValueError(f"rolls must be a positive integer, got {rolls!r}")
-        rolls = check_rolls(rolls, "rolls")
+        rolls = check_rolls(rolls, "rolls")      # a positive integer, at most MAX_ROLLS
         if rolls > 1 and self.net.cfg.rotation != "bins":
             raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")
         depth = np.asarray(depth)
@@ -255,7 +253,6 @@ class HBEO:
         warns = [self._check_view(v, i if len(views) > 1 else None) for i, v in enumerate(views)]
         x0 = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]
-        t1 = time.perf_counter()
         net_s, prob_sum, coeff_sum, P, pose0 = 0.0, 0.0, 0.0, 0.0, None
         step = max(1, ROLL_BATCH // len(views))        # rolls per network pass: memory bounded whatever rolls is
         for r0 in range(0, rolls, step):
