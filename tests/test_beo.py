@@ -72,6 +72,15 @@ def test_fit_attributes_and_density_matches_sklearn(beo, data):
     assert two.means_.shape == (10, 2, k) and np.isfinite(two.log_density(X[:3])).all()
 
 
+def test_fit_shows_progress_over_the_classes_and_fits_the_same(beo, data, capsys):
+    _, _, _, G, L, sub = data
+    quiet = capsys.readouterr().err
+    again = BEO(sub).fit(G, L, progress=True)
+    err = capsys.readouterr().err
+    assert "BEO class densities" in err and "10/10" in err and "BEO class densities" not in quiet
+    assert np.array_equal(again.means_, beo.means_)
+
+
 def test_projection_solves_the_normal_equations(beo, data, views):
     """The batched projection equals ObjectSubspace.partial_project, and its residual is the
     squared error of the reconstruction on the known voxels."""

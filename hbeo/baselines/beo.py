@@ -168,10 +168,12 @@ class BEO:
         self._projector = MaskedProjector(self.subspace.basis_)
 
     # ------------------------------------------------------------------ fit
-    def fit(self, grids, labels, classes=None) -> "BEO":
+    def fit(self, grids, labels, classes=None, progress: bool = False) -> "BEO":
         """Fit the class densities on training grids (N, 30, 30, 30) bool with labels (N,) indexing
-        ``classes`` (default: the subspace's). Class priors are the class frequencies."""
+        ``classes`` (default: the subspace's). Class priors are the class frequencies. ``progress``:
+        a bar over the classes' mixtures."""
         from sklearn.mixture import GaussianMixture
+        from tqdm.auto import tqdm
         g = np.asarray(grids)
         labels = np.asarray(labels)
         if g.ndim != 4 or g.shape[1:] != (C.RESOLUTION,) * 3:
@@ -192,7 +194,7 @@ class BEO:
         weights = np.zeros((len(classes), J))
         means = np.zeros((len(classes), J, k))
         pchol = np.zeros((len(classes), J, k, k))
-        for ci in range(len(classes)):
+        for ci in tqdm(range(len(classes)), desc="BEO class densities", disable=not progress):
             Xc = X[labels == ci]
             j = min(J, len(Xc))
             if len(Xc) == 1:      # scikit-learn cannot fit one point: a ball of variance reg around it

@@ -82,9 +82,9 @@ def load_method(method: str, run, profile="cpu", progress: bool = True, max_step
     train = GridSet.load(run.grids("train"))
     if method == "beo":
         m = BEO(ObjectSubspace.load(run.subspace), so3_grid=config.get_profile(profile).baselines.beo_so3_grid)
+        m = m.fit(train.grids, train.labels, train.classes, progress=progress)
     else:
-        m = ICPBaseline()
-    m = m.fit(train.grids, train.labels, train.classes)
+        m = ICPBaseline().fit(train.grids, train.labels, train.classes)
     m.save(path)
     return m
 
