@@ -40,3 +40,24 @@ def test_interval_of_a_metrics_dict_and_bad_input():
         interval(m, "speed")
     with pytest.raises(ValueError, match="must be equal"):
         cluster_bootstrap(np.ones(3), np.ones(2))
+
+
+def test_class_mean_weighs_every_class_alike_and_resamples_objects():
+    """class_mean: the mean of the per-class accuracies (evaluate's class_mean_accuracy), not the share of
+    right answers; its interval resamples objects, each keeping its class and views."""
+    from hbeo.evaluation.evaluate import class_mean_accuracy
+    from hbeo.evaluation.intervals import class_mean, estimate
+    q = {"object": ["a", "a", "b", "c", "d"], "class": ["x", "x", "x", "x", "y"], "pred": ["x", "x", "y", "x", "x"],
+         "pose_deg": [10.0, 50.0, 20.0, 100.0, 5.0], "pose_sym_deg": [10.0, 5.0, 20.0, 40.0, 5.0],
+         "iou": [0.5, 0.7, 0.2, 0.4, 0.1]}
+    m = {"per_query": q}
+    assert estimate(m, "class_mean") == pytest.approx((3 / 4 + 0) / 2)           # accuracy would be 3/5
+    assert estimate(m, "class_mean") == pytest.approx(class_mean_accuracy(q["class"], q["pred"]))
+    assert estimate(m, "accuracy") == pytest.approx(0.6)
+    est, lo, hi = interval(m, "class_mean", n_boot=300)
+    assert est == estimate(m, "class_mean") and 0 <= lo <= est <= hi <= 1 and lo < hi
+    # modulo symmetry reads pose_sym_deg: 4 of 5 within 30 degrees, raw 3 of 5
+    assert estimate(m, "within_30_sym") == pytest.approx(0.8) and estimate(m, "within_30") == pytest.approx(0.6)
+    assert class_mean([1, 0, 1], ["p", "q", "q"]) == pytest.approx(0.75) and np.isnan(class_mean([], []))
+    with pytest.raises(ValueError, match="same"):
+        class_mean([1, 0], ["p"])

@@ -27,7 +27,7 @@ def _settings() -> dict[str, str]:
     return {"63°": "the Kinect-like camera's horizontal field of view", "60 %": "VBPCA's variance fraction",
             "10 %": "the validation fraction", "0.45": "verify's min_agreement", "14°": "rotation-bin spacing",
             "10°": "rotation-bin target smoothing", "40°": "rotation-bin decoding window", "95 %": "interval level",
-            "78 %": "issue 16's accuracy target", "30°": "the within-30° threshold", "180°": "a front-back flip",
+            "30°": "the within-30° threshold", "180°": "a front-back flip",
             "170°": "predict's largest field of view", "90 %": "predict's in-view share", "15°": "a benchmark threshold",
             "0.001": "the default depth scale (metres per stored unit)"}
 
