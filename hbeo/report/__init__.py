@@ -1,11 +1,13 @@
 """Presenting the numbers: the paper's tables and figures, the run's report, manifest and book.
 
-- :mod:`~hbeo.report.tables`: the paper's tables and claims, and writing tables to a run;
+- :mod:`~hbeo.report.tables`: the paper's tables and claims (on one reading's evaluations), and writing tables to a run;
 - :mod:`~hbeo.report.figures`: voxel pictures, galleries, axis panels, writing figures;
 - :mod:`~hbeo.report.paper_figures`: the figures of notebooks 05-07;
 - :mod:`~hbeo.report.model_table`: the validation / test table of a run's models (README block);
 - :mod:`~hbeo.report.provenance`: the run's ``manifest.json``;
 - :mod:`~hbeo.report.reproduction_md`: ``REPRODUCTION.md`` (reported vs. reproduced) and the README summary;
+- :mod:`~hbeo.report.readings`: ``REPRODUCTION.md``'s section on the paper's claims under each reading of the
+  view protocol;
 - :mod:`~hbeo.report.notebooks`: running the numbered notebooks with papermill;
 - :mod:`~hbeo.report.book`: the run's static, offline HTML book.
 

@@ -2,7 +2,8 @@
 deviation from the paper's setup.
 
 :func:`write_reproduction` reads the run folder's manifest (:mod:`hbeo.report.provenance`) and
-the tables and figures notebooks 04-07 wrote there (every path from :class:`hbeo.rundir.RunDir`), and
+the tables and figures notebooks 04-07 wrote there (every path from :class:`hbeo.rundir.RunDir`), with the
+paper's claims under each reading of the view protocol the run has evaluated (:mod:`hbeo.report.readings`), and
 writes one Markdown file (atomically) that links into the run: nothing in it is typed by hand except
 the list of deviations, whose figures come from the manifest. :func:`write_reports` is what ``python -m
 hbeo reproduce`` calls after the last notebook: the run's own ``REPRODUCTION.md``, and for the
@@ -19,7 +20,7 @@ import os
 from pathlib import Path
 
 from hbeo import config
-from hbeo.report import tables as T
+from hbeo.report import readings, tables as T
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -309,6 +310,7 @@ def reproduction_text(run, out: Path) -> str:
         "",
         fig("07_runtime", "runtime"),
         "",
+        *readings.section(run, man),
         "## Options trained in the run (notebook 04, validation objects)",
         "",
         _read(run.table(T.OPTIONS, "md")),

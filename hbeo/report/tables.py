@@ -1,5 +1,6 @@
 """The paper's tables, built from evaluation metrics (:mod:`hbeo.evaluation.evaluate` JSON dicts; the claims and
-intervals are :mod:`hbeo.evaluation.paired`'s), and writing any notebook table into the run folder.
+intervals are :mod:`hbeo.evaluation.paired`'s), the paper's claims judged on one reading's evaluations
+(:func:`claims`), and writing any notebook table into the run folder.
 
 Every paper table carries a ``source`` column: ``reported`` (the paper, :func:`paper_table`, from
 ``paper/reported/*.csv``) or ``reproduced`` (this run). :func:`to_markdown` formats any table as
@@ -7,10 +8,11 @@ Markdown; :func:`save_table` writes one as CSV and Markdown (:func:`save_csv` CS
 :meth:`hbeo.rundir.RunDir.table`. The tables' names are the constants below (``TABLE1 = "05_table1"``
 ...), shared by the notebooks that write them and the report that reads them.
 
-May import: foundation.
+May import: foundation and :mod:`hbeo.evaluation` (labels, the paired statistics, the protocol's settings).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,9 @@ import pandas as pd
 
 from hbeo import config
 from hbeo.conventions import CLASSES
+from hbeo.evaluation import paired
 from hbeo.evaluation.method import LABELS, label
+from hbeo.evaluation.protocol import VERIFIED
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -225,6 +229,35 @@ def table2(evals: list[dict], reported: pd.DataFrame | None = None) -> pd.DataFr
             rows.append({"method": f"{meth} ({pose}), reported only", "queries": np.nan, "median (s)": np.nan,
                          "p25 (s)": np.nan, "p75 (s)": np.nan, "mean (s)": np.nan, "paper: mean (s)": v})
     return pd.DataFrame(rows)
+
+
+#: Who plays HBEO in the claims, in the claims table's order: HBEO as the paper trains it, then HBEO with
+#: roll averaging and the verify step (ours), judged the same way.
+PLAYERS = (paired.HBEO, (VERIFIED, "3dof"))
+
+
+def claim_methods(claim: paired.Claim, player: tuple) -> tuple[tuple, tuple]:
+    """The two (method, pose) settings ``claim`` compares when ``player`` plays HBEO (as
+    :func:`hbeo.evaluation.paired.judge` substitutes it)."""
+    return tuple(player if k == paired.HBEO else k for k in (claim.a, claim.b))
+
+
+def claims(evals: Mapping[tuple, dict], players=PLAYERS) -> pd.DataFrame:
+    """The paper's claims (:data:`hbeo.evaluation.paired.CLAIMS`) judged on one reading's evaluations
+    ``evals`` ({(method, pose): metrics dict}, every one under the same reading of the view protocol):
+    one :class:`~hbeo.evaluation.paired.PairedBootstrap` over all of them, then
+    :func:`~hbeo.evaluation.paired.judge` with each of ``players`` playing HBEO. A row per claim whose two
+    settings are both in ``evals``, players in order, claims in :data:`~hbeo.evaluation.paired.CLAIMS`
+    order (the table ``06_claims`` holds); the index says which: (player's method, claim number)."""
+    boot = paired.PairedBootstrap(list(evals.values()))
+    rows, index = [], []
+    for p in players:
+        for i, c in enumerate(paired.CLAIMS):
+            judged = paired.judge(boot, (c,), hbeo=p)
+            if len(judged):
+                rows.append(judged.iloc[0])
+                index.append((p[0], i))
+    return pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["player", "claim"]) if index else None)
 
 
 def worse_than_chance(evals: list[dict]) -> list[str]:

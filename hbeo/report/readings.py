@@ -1,0 +1,224 @@
+"""The paper's claims under each reading of the view protocol: a section of ``REPRODUCTION.md``.
+
+The paper's views are "multiple random viewpoints"; each sampler of :data:`hbeo.render.poses.SAMPLERS` is
+one reading of those words. A run's evaluations under its model's own sampler (the *main reading*) are
+``eval_<method>_<pose>.json``, under another reading ``eval_<method>_<pose>_<sampler>.json``
+(:meth:`hbeo.rundir.RunDir.evaluation`; written by :func:`hbeo.evaluation.protocol.readings`,
+``scripts/readings.sh``). :func:`run_readings` reads what the run folder holds, reading by reading, and
+:func:`section` writes the section: the main reading and the README's argument for it, each reading's
+files, and, once another reading than the main one has files, one table of the claims
+(:func:`hbeo.report.tables.claims` of each reading's evaluations, a column per reading with files) and a
+Table I block per reading (class-mean accuracy and accuracy with intervals,
+:func:`hbeo.evaluation.paired.estimates` as notebook 05 shows them). What a reading lacks is marked *not
+evaluated* with the command that evaluates it; a reading without files is listed, never an error. With the
+main reading alone the section adds no table: its claims and Table I are the report's sections above, read
+from the notebooks' tables (``06_claims``, ``05_accuracy_ci``), which the main column would repeat.
+
+A file is used under its reading only if it records that reading (its ``sampler``) and, where the main
+reading's file of the same setting (else the main HBEO file) records its request, the same dataset,
+model file and seed, and for the same setting the same baseline file and objects: a file left from
+another model is listed as stale, not compared.
+
+May import: foundation, :mod:`hbeo.evaluation` and the other report modules.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import pandas as pd
+
+from hbeo import config
+from hbeo.evaluation import paired
+from hbeo.evaluation.method import LABELS
+from hbeo.evaluation.protocol import EVALUATIONS, TABLE1
+from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
+from hbeo.report import tables as T
+from hbeo.rundir import RunDir
+
+TITLE = "The paper's claims under each reading of the view protocol"
+#: ``scripts/readings.sh``'s interpreter default, and the variable that restricts its settings.
+SCRIPT, PY, METHODS = "scripts/readings.sh", ".venv/bin/python", "METHODS"
+#: The project's main reading and the README's argument for it ("Readings of the view protocol"), quoted:
+#: ``tests/test_readings_report.py`` checks every sentence is the README's.
+MAIN = "so3"
+ARGUMENT = ("The paper estimates a full 3-DOF pose (its 3-element axis-angle output), calls the objects' orientation "
+            "unknown, and states no restriction on the viewpoints; uniform over SO(3) is the distribution that assumes "
+            "nothing about orientation, and the only one of the four under which every 3-DOF pose the network can "
+            "output is a pose it may be asked for. `upright` and `floor` are defensible readings of a robot's setting "
+            "and are reported beside it, not instead of it.")
+#: What a reading's file must share with the main reading's: with any main file, with that of its own setting.
+SAME_RUN, SAME_SETTING = ("dataset_fingerprint", "model_sha256", "seed"), ("baseline_sha256", "per_class", "views")
+
+
+@dataclass
+class Reading:
+    """One reading's evaluations in a run folder: ``evals`` {(method, pose): metrics} of the files used,
+    ``stale`` {(method, pose): which file there was not used, and why}."""
+    sampler: str
+    main: bool
+    evals: dict = field(default_factory=dict)
+    stale: dict = field(default_factory=dict)
+
+    @property
+    def missing(self) -> list[tuple]:
+        """The settings of :data:`~hbeo.evaluation.protocol.EVALUATIONS` without a usable file."""
+        return [k for k in EVALUATIONS if k not in self.evals]
+
+
+def _read(path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def main_sampler(plain: dict) -> str | None:
+    """The reading the main files ``plain`` ({(method, pose): metrics}) record: the model's training sampler;
+    None when none records one. ValueError when they disagree."""
+    found = {m["sampler"] for m in plain.values() if m.get("sampler")}
+    if len(found) > 1:
+        raise ValueError(f"the run's eval_<method>_<pose>.json files record different samplers {sorted(found)}")
+    return found.pop() if found else None
+
+
+def _stale(m: dict, sampler: str, ref: dict | None, same_setting: bool) -> str | None:
+    """Why metrics ``m`` found under reading ``sampler`` cannot be compared with the main reading's ``ref``."""
+    if m.get("sampler") != sampler:
+        return f"records sampler {m.get('sampler')!r}"
+    a, b = m.get("request") or {}, (ref or {}).get("request") or {}
+    for key in SAME_RUN + (SAME_SETTING if same_setting else ()):
+        if key in a and key in b and a[key] != b[key]:
+            return f"another {key.replace('_', ' ')} ({a[key]}; the main reading's: {b[key]})"
+    return None
+
+
+def run_readings(run, settings=EVALUATIONS) -> list[Reading]:
+    """Every reading of :data:`~hbeo.render.poses.SAMPLERS` with what ``run`` holds of ``settings`` under it,
+    the main reading (its plain files) first, then the others in that order."""
+    run = RunDir.of(run)
+    plain = {k: m for k in settings if (m := _read(run.evaluation(*k))) is not None}
+    main = main_sampler(plain)
+    ref_any = plain.get(T.PLAYERS[0]) or next(iter(plain.values()), None)
+    out = [Reading(main, True, plain)] if main else []
+    for s in SAMPLERS:
+        if s == main:
+            continue
+        r = Reading(s, False)
+        for k in settings:
+            path = run.evaluation(*k, s)
+            if (m := _read(path)) is None:
+                continue
+            why = _stale(m, s, plain.get(k, ref_any), k in plain)
+            if why:
+                r.stale[k] = f"`{path.name}`: {why}"
+            else:
+                r.evals[k] = m
+        out.append(r)
+    return out
+
+
+def command(man: dict, run, sampler: str, methods=()) -> str:
+    """The ``scripts/readings.sh`` line that evaluates ``methods`` (all when empty) of ``run`` under ``sampler``."""
+    where = os.path.relpath(RunDir.of(run).path, config.REPO_ROOT)
+    only = f'{METHODS}="{" ".join(f"{m}:{p}" for m, p in methods)}" ' if methods else ""
+    return (f"`{only}bash {SCRIPT} {man.get('profile') or 'PROFILE'} {man.get('dataset') or 'DATASET'} {where} "
+            f"{PY} {sampler}`")
+
+
+def _name(s: Reading) -> str:
+    return f"`{s.sampler}`" + (" (main)" if s.main else "")
+
+
+def _labels(keys) -> str:
+    return ", ".join(LABELS.get(k, f"{k[0]} ({k[1]})") for k in keys)
+
+
+def claims_table(readings: list[Reading], man: dict, run) -> pd.DataFrame:
+    """The claims (rows: each of :data:`hbeo.report.tables.PLAYERS` playing HBEO in each claim of
+    :data:`hbeo.evaluation.paired.CLAIMS`) under each reading with a file (a column each): the verdict,
+    the contrast, both statistics and the pairs, or *not evaluated* and the command that evaluates it."""
+    shown = [r for r in readings if r.evals]
+    judged = {r.sampler: T.claims(r.evals) for r in shown}
+    rows = []
+    for p in T.PLAYERS:
+        for i, c in enumerate(paired.CLAIMS):
+            row = {"claim (paper)": c.text, "HBEO played by": LABELS[p]}
+            for r in shown:
+                cl = judged[r.sampler]
+                if (p[0], i) in cl.index:
+                    j = cl.loc[(p[0], i)]
+                    row[_name(r)] = (f"**{j['verdict']}**: contrast {j['contrast (claim: < 0)']}; {j['ours (95 % CI)']}; "
+                                     f"{j['pairs']} pairs, {j['objects']} objects")
+                else:
+                    need = [k for k in T.claim_methods(c, p) if k not in r.evals]
+                    row[_name(r)] = f"not evaluated (run {command(man, run, r.sampler, need)})"
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def accuracy_block(r: Reading, man: dict, run) -> list[str]:
+    """Table I under reading ``r``: accuracy and class-mean accuracy with intervals of each classifying
+    setting (:data:`~hbeo.evaluation.protocol.TABLE1`) it holds, as ``05_accuracy_ci`` shows them, and the
+    settings it lacks."""
+    have = [r.evals[k] for k in TABLE1 if k in r.evals]
+    lines = [f"**{_name(r)}**", ""]
+    if have:
+        acc = paired.estimates(paired.PairedBootstrap(have), ["accuracy", "class_accuracy"], keys=TABLE1)
+        lines += [T.to_markdown(paired.wide(acc)), ""]
+    need = [k for k in TABLE1 if k not in r.evals]
+    if need:
+        lines += [f"Not evaluated: {_labels(need)} (run {command(man, run, r.sampler, need)}).", ""]
+    return lines
+
+
+def _files_line(r: Reading, man: dict, run) -> str:
+    """``- `floor` — what it draws. What the run holds under it, what it lacks and the command for that."""
+    text = f"- {_name(r)} — {SAMPLER_HELP[r.sampler]}. "
+    if not r.evals:
+        text += f"Not evaluated (run {command(man, run, r.sampler)})"
+    else:
+        files = ("`eval_<method>_<pose>.json`" if r.main else f"`eval_<method>_<pose>_{r.sampler}.json`")
+        text += f"{len(r.evals)} of {len(EVALUATIONS)} settings ({files}: {_labels(r.evals)})"
+        if r.missing:
+            text += f"; not evaluated: {_labels(r.missing)} (run {command(man, run, r.sampler, r.missing)})"
+    if r.stale:
+        text += "; not used: " + "; ".join(r.stale.values())
+    return text + "."
+
+
+def section(run, man: dict) -> list[str]:
+    """The lines of the section :data:`TITLE` of ``REPRODUCTION.md`` for ``run`` (``man``: its manifest)."""
+    readings = run_readings(run)
+    main = next((r.sampler for r in readings if r.main), None)
+    if main is None:
+        says = ("The run's main reading (the model's training sampler) is not recorded: "
+                + ("its `eval_<method>_<pose>.json` files record no sampler." if any(
+                    RunDir.of(run).evaluation(*k).exists() for k in EVALUATIONS) else
+                   "it holds no `eval_<method>_<pose>.json` yet."))
+    elif main == MAIN:
+        says = (f"**The main reading is `{MAIN}`**, the model's training sampler: every section above is under it. "
+                f"It was fixed before any result under another reading was seen, and is never chosen by which "
+                f"reading matches the paper's figures (README, *Readings of the view protocol*). {ARGUMENT}")
+    else:
+        says = (f"**This run's main reading is `{main}`**, its model's training sampler: every section above is "
+                f"under it. The project's main reading is `{MAIN}` (README, *Readings of the view protocol*): "
+                f"{ARGUMENT}")
+    lines = [f"## {TITLE}", "",
+             "The paper's views are \"multiple random viewpoints\"; each sampler of `hbeo.render.poses.SAMPLERS` "
+             "is one reading of those words. " + says, "",
+             "Under one reading every method scores the same images; the readings share the objects and each "
+             "view's random stream, not the images, so readings are compared per object, not per image. "
+             "Verdicts and intervals as in the claims section above. Each reading, and the run's files under it:", ""]
+    lines += [_files_line(r, man, run) for r in readings]
+    shown = [r for r in readings if r.evals]
+    if not any(not r.main for r in shown):
+        return lines + ["", "No other reading is evaluated: the claims and Table I under the main reading are the "
+                            "sections above." if shown else "No reading is evaluated yet.", ""]
+    lines += ["", T.to_markdown(claims_table(readings, man, run)), "",
+              "Table I under each reading: accuracy and class-mean accuracy (%) of each classifying setting "
+              "(95 % intervals over test objects):", ""]
+    for r in shown:
+        lines += accuracy_block(r, man, run)
+    return lines
