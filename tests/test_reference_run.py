@@ -1,10 +1,15 @@
-"""The committed real-data model still gives its committed numbers.
+"""The committed reference runs' models still give their committed numbers, query by query.
 
-``results/cpu-modelnet10-vox30/model.hbeo`` (trained by the reference run, `make reproduce PROFILE=cpu
-DATASET=modelnet10-vox30`: rotation bins, roll augmentation, voxel loss, 30 epochs) evaluated on the
-paired test views of the run (every usable test object, three views each, seed 0) must reproduce the run's
+Two committed run folders each hold the model their `make reproduce` trained:
+
+- ``results/cpu-modelnet10-vox30/`` (`make reproduce PROFILE=cpu DATASET=modelnet10-vox30`: rotation bins,
+  roll augmentation, voxel loss, 30 epochs), scored on every usable ModelNet10 test object (907) x 3 views;
+- ``results/cpu-procedural/`` (plain `make reproduce`: the default, procedural data and the ``cpu`` profile),
+  scored on the procedural test split x 3 views.
+
+Each ``model.hbeo`` evaluated on the paired test views of its run (seed 0) must reproduce the run's
 ``eval_hbeo_3dof.json`` query by query: the same object and view, predicted class, pose error and
-completion for each of the 2,721 views.
+completion for each view. A change that moves any of these numbers fails here until the run is regenerated.
 """
 import json
 from pathlib import Path
@@ -18,29 +23,48 @@ from hbeo.storage import sha256_file
 
 pytestmark = pytest.mark.slow
 
-RUN = RunDir(Path(__file__).resolve().parent.parent / "results" / "cpu-modelnet10-vox30")
+RESULTS = Path(__file__).resolve().parent.parent / "results"
+#: run folder -> (dataset, number of test objects its evaluation covers)
+RUNS = {"cpu-modelnet10-vox30": ("modelnet10-vox30", 907), "cpu-procedural": ("procedural", None)}
 
 
-@pytest.fixture(scope="module")
-def committed():
-    return json.loads(RUN.evaluation("hbeo", "3dof").read_text())
+@pytest.fixture(params=sorted(RUNS), scope="module")
+def reference(request):
+    run = RunDir(RESULTS / request.param)
+    dataset, n_objects = RUNS[request.param]
+    committed = json.loads(run.evaluation("hbeo", "3dof").read_text())
+    return run, dataset, n_objects, committed
 
 
-def test_the_committed_model_reproduces_its_committed_evaluation(vox30_file, committed, monkeypatch):
+def _dataset(name, monkeypatch, request):
     from hbeo.data.datasets import get_dataset
+    if name == "procedural":
+        return get_dataset("procedural", profile=config.get_profile("cpu"))
+    monkeypatch.setenv("HBEO_VOX30", str(request.getfixturevalue("vox30_file")))
+    with pytest.warns(UserWarning, match="empty grids"):
+        return get_dataset(name, profile=config.get_profile("cpu"))
+
+
+def test_the_committed_model_reproduces_its_committed_evaluation(reference, monkeypatch, request):
     from hbeo.model.inference import HBEO
     from hbeo.evaluation.evaluate import evaluate_model
 
-    monkeypatch.setenv("HBEO_VOX30", str(vox30_file))
-    model = HBEO.load(RUN.model)
-    with pytest.warns(UserWarning, match="empty grids"):
-        ds = get_dataset("modelnet10-vox30", profile=config.get_profile("cpu"))
+    run, dataset, n_objects, committed = reference
+    ds = _dataset(dataset, monkeypatch, request)
+    model = HBEO.load(run.model)
     req = committed["request"]
     assert (req["per_class"], req["views"], req["seed"]) == (None, 3, 0)     # the whole split, as the README says
-    assert sha256_file(RUN.model)[:16] == req["model_sha256"]                 # of this very model file
+    assert sha256_file(run.model)[:16] == req["model_sha256"]                 # of this very model file
+    manifest = json.loads(run.manifest.read_text())
+    assert (manifest["profile"], manifest["dataset"]) == ("cpu", dataset)
+    assert manifest["git_dirty"] is False and manifest.get("git_tag"), "made from a clean tagged clone"
     got = evaluate_model(model, ds, split="test", views=req["views"], seed=req["seed"], progress=False)
-    assert got["n_objects"] == committed["n_objects"] == 907 and got["n_queries"] == committed["n_queries"]
+    assert got["n_objects"] == committed["n_objects"] == (n_objects or len(ds.records(split="test")))
+    assert got["n_queries"] == committed["n_queries"] == 3 * committed["n_objects"]
     assert got["accuracy"] == committed["accuracy"]
+    q = committed["per_query"]          # (files written before the key existed: from their queries)
+    per_class = [np.mean([p == c for p, k in zip(q["pred"], q["class"]) if k == c]) for c in sorted(set(q["class"]))]
+    assert got["class_mean_accuracy"] == pytest.approx(committed.get("class_mean_accuracy", np.mean(per_class)))
     a, b = got["per_query"], committed["per_query"]
     assert a["object"] == b["object"] and a["view"] == b["view"] and a["class"] == b["class"]
     assert a["pred"] == b["pred"]
