@@ -187,7 +187,8 @@ def cmd_convert_model(args) -> int:
 
 def cmd_reproduce(args) -> int:
     from hbeo.report.notebooks import run_notebooks
-    run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out, only=args.only, fresh=args.fresh)
+    run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out, only=args.only, fresh=args.fresh,
+                  training_seed=args.seed)
     return 0
 
 
@@ -298,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: the profile's recipe)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=POSITIVE, help="distance-insensitive input: zoom to this object distance (m)")
-    p.add_argument("--seed", type=NONNEG, default=0)
+    p.add_argument("--seed", type=NONNEG, help="training seed (default 0)")
     p.add_argument("--name", default=DEFAULT_MODEL, help=f"model file name in the run folder ({DEFAULT_MODEL})")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p = _command(sub, cmd_predict, "predict", help="class, pose and completed shape from one depth image")
@@ -350,7 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("new", help="new model file (may be OLD itself: replaced once the conversion checks out)")
     p = _command(sub, cmd_reproduce, "reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
-    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET, -seedS added for --seed S)")
+    p.add_argument("--seed", type=NONNEG, default=0, help="training seed of every model the run trains (HBEONet, "
+                   "the 3-D CNN); data, renderings and test views keep seed 0, so seeds score the same images (0)")
     p.add_argument("--only", nargs="*", help="notebook name prefixes to run (default: all)")
     p.add_argument("--fresh", action="store_true", help="first remove the run's models, baselines and metrics")
     p = _command(sub, cmd_report, "report", help="write RUN/REPRODUCTION.md (reported vs. reproduced) from a finished run")
