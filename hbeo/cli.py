@@ -194,6 +194,12 @@ def cmd_reproduce(args) -> int:
 
 def cmd_report(args) -> int:
     from hbeo.report import model_table, reproduction_md as md
+    if args.seeds is not None:                    # the spread over training seeds (hbeo.report.seeds)
+        from hbeo.report.seeds import write_seed_table
+        if args.model_table or args.readme:
+            raise HBEOError("--seeds writes the seed table alone; --model-table and --readme take --run")
+        print("wrote " + " and ".join(map(str, write_seed_table(args.seeds, args.out))))
+        return 0
     if args.model_table:
         path = model_table.write_model_table(args.run, args.readme)
         print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
@@ -357,8 +363,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", nargs="*", help="notebook name prefixes to run (default: all)")
     p.add_argument("--fresh", action="store_true", help="first remove the run's models, baselines and metrics")
     p = _command(sub, cmd_report, "report", help="write RUN/REPRODUCTION.md (reported vs. reproduced) from a finished run")
-    p.add_argument("--run", required=True, help="run folder, e.g. results/cpu-modelnet10-vox30")
-    p.add_argument("--out", help="output file (default: RUN/REPRODUCTION.md; the committed one: paper/REPRODUCTION.md)")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--run", help="run folder, e.g. results/cpu-modelnet10-vox30")
+    g.add_argument("--seeds", nargs="+", metavar="RUN", help="instead: the spread over training seeds of these runs "
+                   "(one profile and dataset, one run per seed, at least 2) -> seeds_table.csv/.md in --out")
+    p.add_argument("--out", help="output file (default: RUN/REPRODUCTION.md; the committed one: paper/REPRODUCTION.md); "
+                                 "with --seeds: a folder (default: the first RUN)")
     p.add_argument("--model-table", action="store_true",
                    help="instead: the model table (validation / test) from the run's models.json -> model_table.md")
     p.add_argument("--readme", help="also replace the generated block (summary, or with --model-table the tables) in "

@@ -6,6 +6,7 @@
 - :mod:`~hbeo.report.model_table`: the validation / test table of a run's models (README block);
 - :mod:`~hbeo.report.provenance`: the run's ``manifest.json``;
 - :mod:`~hbeo.report.reproduction_md`: ``REPRODUCTION.md`` (reported vs. reproduced) and the README summary;
+- :mod:`~hbeo.report.seeds`: the spread over training seeds of runs that differ only in that seed;
 - :mod:`~hbeo.report.notebooks`: running the numbered notebooks with papermill;
 - :mod:`~hbeo.report.book`: the run's static, offline HTML book.
 
