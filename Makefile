@@ -1,6 +1,7 @@
 # hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
 #   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/, training
-#                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints)
+#                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints;
+#                    SEED=N: train every model with training seed N, into results/$(PROFILE)-$(DATASET)-seedN)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile), then the fast
 #                    tests again on numpy 2 (test-numpy2)
 #   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
@@ -13,7 +14,8 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PROFILE ?= cpu
 DATASET ?= procedural
-RUN    ?= results/$(PROFILE)-$(DATASET)
+SEED   ?= 0
+RUN    ?= results/$(PROFILE)-$(DATASET)$(if $(filter-out 0,$(SEED)),-seed$(SEED))
 NP2VENV ?= .venv-numpy2
 
 .PHONY: setup reproduce book test test-unit test-fast test-numpy2 test-notebooks benchmark clean-results
@@ -25,7 +27,7 @@ $(VENV)/.installed: requirements.txt requirements-nodeps.txt scripts/setup.sh
 	touch $@
 
 reproduce: setup
-	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter 1,$(RESUME)),,--fresh)
+	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter 1,$(RESUME)),,--fresh)$(if $(filter-out 0,$(SEED)), --seed $(SEED))
 
 book: setup
 	$(PY) -m hbeo book $(RUN)

@@ -187,12 +187,19 @@ def cmd_convert_model(args) -> int:
 
 def cmd_reproduce(args) -> int:
     from hbeo.report.notebooks import run_notebooks
-    run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out, only=args.only, fresh=args.fresh)
+    run_notebooks(profile=args.profile, dataset=args.dataset, out_dir=args.out, only=args.only, fresh=args.fresh,
+                  training_seed=args.seed)
     return 0
 
 
 def cmd_report(args) -> int:
     from hbeo.report import model_table, reproduction_md as md
+    if args.seeds is not None:                    # the spread over training seeds (hbeo.report.seeds)
+        from hbeo.report.seeds import write_seed_table
+        if args.model_table or args.readme:
+            raise HBEOError("--seeds writes the seed table alone; --model-table and --readme take --run")
+        print("wrote " + " and ".join(map(str, write_seed_table(args.seeds, args.out))))
+        return 0
     if args.model_table:
         path = model_table.write_model_table(args.run, args.readme)
         print(f"wrote {path}" + (f" and its block in {args.readme}" if args.readme else ""))
@@ -298,7 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: the profile's recipe)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=POSITIVE, help="distance-insensitive input: zoom to this object distance (m)")
-    p.add_argument("--seed", type=NONNEG, default=0)
+    p.add_argument("--seed", type=NONNEG, help="training seed (default 0)")
     p.add_argument("--name", default=DEFAULT_MODEL, help=f"model file name in the run folder ({DEFAULT_MODEL})")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p = _command(sub, cmd_predict, "predict", help="class, pose and completed shape from one depth image")
@@ -350,12 +357,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("new", help="new model file (may be OLD itself: replaced once the conversion checks out)")
     p = _command(sub, cmd_reproduce, "reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p)
-    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET, -seedS added for --seed S)")
+    p.add_argument("--seed", type=NONNEG, default=0, help="training seed of every model the run trains (HBEONet, "
+                   "the 3-D CNN); data, renderings and test views keep seed 0, so seeds score the same images (0)")
     p.add_argument("--only", nargs="*", help="notebook name prefixes to run (default: all)")
     p.add_argument("--fresh", action="store_true", help="first remove the run's models, baselines and metrics")
     p = _command(sub, cmd_report, "report", help="write RUN/REPRODUCTION.md (reported vs. reproduced) from a finished run")
-    p.add_argument("--run", required=True, help="run folder, e.g. results/cpu-modelnet10-vox30")
-    p.add_argument("--out", help="output file (default: RUN/REPRODUCTION.md; the committed one: paper/REPRODUCTION.md)")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--run", help="run folder, e.g. results/cpu-modelnet10-vox30")
+    g.add_argument("--seeds", nargs="+", metavar="RUN", help="instead: the spread over training seeds of these runs "
+                   "(one profile and dataset, one run per seed, at least 2) -> seeds_table.csv/.md in --out")
+    p.add_argument("--out", help="output file (default: RUN/REPRODUCTION.md; the committed one: paper/REPRODUCTION.md); "
+                                 "with --seeds: a folder (default: the first RUN)")
     p.add_argument("--model-table", action="store_true",
                    help="instead: the model table (validation / test) from the run's models.json -> model_table.md")
     p.add_argument("--readme", help="also replace the generated block (summary, or with --model-table the tables) in "

@@ -274,13 +274,14 @@ def cache_dir() -> Path:
     return Path(env).expanduser() if env else data_dir() / "cache"
 
 
-def run_path(profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> Path:
+def run_path(profile: str, dataset: str, out_dir: str | os.PathLike | None = None, training_seed: int = 0) -> Path:
     """Where a run lives (not created; :class:`hbeo.rundir.RunDir` owns what is inside): ``out_dir``
     if given (relative paths are taken from the repository root), else
-    ``<HBEO_RESULTS>/<profile>-<dataset>``."""
+    ``<HBEO_RESULTS>/<profile>-<dataset>``, or ``<HBEO_RESULTS>/<profile>-<dataset>-seed<S>`` for a
+    run whose models are trained with a training seed ``S`` other than 0 (:attr:`hbeo.run.Run.training_seed`)."""
     if out_dir:
         p = Path(out_dir).expanduser()
         return p if p.is_absolute() else REPO_ROOT / p
     base = Path(os.environ.get("HBEO_RESULTS", REPO_ROOT / "results"))
     safe = str(dataset).replace(os.sep, "_").strip("_") or "dataset"
-    return base / f"{profile}-{safe}"
+    return base / (f"{profile}-{safe}" + (f"-seed{int(training_seed)}" if training_seed else ""))

@@ -134,20 +134,27 @@ def voxelize_to_file(profile, dataset: str, out, workers: int = 0, strict: bool 
 class Run:
     """The run of ``profile`` (a :class:`hbeo.config.Profile`) on ``dataset`` (a loaded
     :class:`hbeo.data.datasets.Dataset`, named ``dataset_name`` on the command line) in the folder ``dir``.
-    Build it with :meth:`open`."""
+    ``training_seed``: the seed of every model the run trains (HBEONet, :meth:`train`, unless its options
+    name one; the 3-D CNN, :meth:`baseline`); data, renderings, the validation split and the evaluation's
+    views keep their own fixed seeds, so runs of several training seeds are scored on the same test
+    images (:mod:`hbeo.report.seeds`). Build it with :meth:`open`."""
 
     profile: config.Profile
     dataset: datasets.Dataset
     dir: RunDir
     dataset_name: str
+    training_seed: int = 0
 
     @classmethod
-    def open(cls, profile, dataset: str, out=None, **dataset_kw) -> "Run":
+    def open(cls, profile, dataset: str, out=None, *, training_seed: int = 0, **dataset_kw) -> "Run":
         """Resolve ``profile`` (name or Profile), load ``dataset`` (name or folder; warnings printed once)
-        and create the run folder ``out`` (default ``<results>/<profile>-<dataset>``)."""
+        and create the run folder ``out`` (default ``<results>/<profile>-<dataset>``, with ``-seed<S>``
+        for a ``training_seed`` S other than 0: :func:`hbeo.config.run_path`)."""
+        if isinstance(training_seed, bool) or not isinstance(training_seed, int) or training_seed < 0:
+            raise ValueError(f"training_seed must be a whole number >= 0, got {training_seed!r}")
         prof = config.get_profile(profile)
         ds = load_dataset(dataset, prof, **dataset_kw)
-        return cls(prof, ds, RunDir.for_run(prof.name, dataset, out), str(dataset))
+        return cls(prof, ds, RunDir.for_run(prof.name, dataset, out, training_seed), str(dataset), training_seed)
 
     @property
     def path(self) -> Path:
@@ -282,12 +289,14 @@ class Run:
     def train(self, options: TrainOptions | None = None, progress: bool = True) -> Trained:
         """Train a model of this run (:func:`hbeo.model.fit.fit_model`) with the profile's recipe, overridden
         by ``options``, on its training images (rendered first when missing; for ``data="stream"`` the
-        subspace alone), and write ``train_<name>/provenance.json`` (recipe, epochs, resumed step,
-        parameters, the options given). Under ``torchrun`` rank 0 prepares the files and writes."""
+        subspace alone), with the options' seed or else the run's :attr:`training_seed`, and write
+        ``train_<name>/provenance.json`` (recipe, epochs, resumed step, parameters, the options given, the
+        seed when not 0). Under ``torchrun`` rank 0 prepares the files and writes."""
         from hbeo.model import distributed
         from hbeo.model.fit import fit_model
         from hbeo.model.loop import CHECKPOINT, load_checkpoint
         opts = options or TrainOptions()
+        seed = self.training_seed if opts.seed is None else opts.seed
         prof = self.profile
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
                                                backend=opts.backend)
@@ -312,7 +321,8 @@ class Run:
         distributed.barrier()
         ckpt = self.dir.training(self.dir.model_file(opts.name)) / CHECKPOINT
         resumed = int(load_checkpoint(ckpt)["step"]) if ckpt.exists() else None
-        model, path = fit_model(self.dir, prof, opts, dataset=self.dataset, settings=settings, progress=progress)
+        model, path = fit_model(self.dir, prof, replace(opts, seed=seed), dataset=self.dataset, settings=settings,
+                                progress=progress)
         distributed.barrier()                             # the model file is complete before any process goes on
         if main:
             info = {"model": path.name, "recipe": opts.recipe(prof), "epochs": opts.epochs or prof.recipe.epochs,
@@ -321,6 +331,8 @@ class Run:
                 info["class_balance"] = balance
             if opts.changed():
                 info["options"] = opts.changed()
+            if seed:                                      # seed-0 trainings keep the provenance they had
+                info["seed"] = seed
             atomic_text(self.dir.training_provenance(path), json_text(info, indent=1))
         return Trained(model, path, resumed)
 
@@ -336,7 +348,8 @@ class Run:
 
     def baseline(self, name: str, progress: bool = True, **kw):
         """Baseline ``name`` (``beo``, ``icp``, ``voxcnn``) of this run: loaded, or fitted/trained beside the
-        model when missing (:func:`hbeo.baselines.methods.load_method`)."""
+        model when missing (:func:`hbeo.baselines.methods.load_method`; the 3-D CNN with the run's
+        :attr:`training_seed`)."""
         from hbeo.baselines.methods import load_method
-        return load_method(name, self.dir, self.profile, progress=progress, **kw)
+        return load_method(name, self.dir, self.profile, progress=progress, seed=self.training_seed, **kw)
 

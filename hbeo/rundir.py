@@ -21,6 +21,7 @@ other module and every notebook asks a :class:`RunDir` for a path::
     NN_<name>.ipynb              report: the executed notebooks
     manifest.json                report: provenance (commit, versions, hardware, wall times)
     REPRODUCTION.md              report: the paper's numbers beside the run's
+    seeds_table.csv / .md        report: the spread over training seeds of this and other runs (report --seeds)
     failures.json                batch steps: the objects each left out, ``[{file, reason, step, ...}]``
 
 Metrics files of models the run no longer holds live outside it, in ``docs/history/<run folder name>/``
@@ -99,10 +100,12 @@ class RunDir:
         return run if isinstance(run, RunDir) else cls(run)
 
     @classmethod
-    def for_run(cls, profile: str, dataset: str, out_dir: str | os.PathLike | None = None) -> "RunDir":
+    def for_run(cls, profile: str, dataset: str, out_dir: str | os.PathLike | None = None,
+                training_seed: int = 0) -> "RunDir":
         """The run folder of ``profile`` on ``dataset`` (created): ``out_dir`` if given (a relative
-        path is taken from the repository root), else ``<HBEO_RESULTS>/<profile>-<dataset>``."""
-        return cls(config.run_path(profile, dataset, out_dir)).create()
+        path is taken from the repository root), else ``<HBEO_RESULTS>/<profile>-<dataset>``, with
+        ``-seed<S>`` appended for a training seed ``S`` other than 0 (:func:`hbeo.config.run_path`)."""
+        return cls(config.run_path(profile, dataset, out_dir, training_seed)).create()
 
     def create(self) -> "RunDir":
         self.path.mkdir(parents=True, exist_ok=True)

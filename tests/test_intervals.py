@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hbeo.evaluation.intervals import cluster_bootstrap, interval
+from hbeo.evaluation.intervals import cluster_bootstrap, interval, intervals
 
 
 def test_interval_covers_the_truth_and_narrows_with_more_objects():
@@ -61,3 +61,25 @@ def test_class_mean_weighs_every_class_alike_and_resamples_objects():
     assert class_mean([1, 0, 1], ["p", "q", "q"]) == pytest.approx(0.75) and np.isnan(class_mean([], []))
     with pytest.raises(ValueError, match="same"):
         class_mean([1, 0], ["p"])
+
+
+def test_class_statistics_and_several_statistics_on_the_same_resamples():
+    """class_mean (the paper's Table I total) and lowest_class weigh every class the same; intervals()
+    gives each statistic exactly what interval() gives it alone."""
+    q = {"object": ["a", "a", "b", "c", "d"], "class": ["x", "x", "y", "y", "y"], "pred": ["x", "y", "y", "y", "x"],
+         "pose_deg": [10.0, 50.0, 40.0, 100.0, 5.0], "pose_sym_deg": [10.0, 20.0, 40.0, 10.0, 5.0],
+         "iou": [0.5, 0.7, 0.2, 0.4, 0.1]}
+    m = {"per_query": q}
+    assert interval(m, "accuracy")[0] == pytest.approx(3 / 5)
+    assert interval(m, "class_mean")[0] == pytest.approx((1 / 2 + 2 / 3) / 2)     # x: 1 of 2, y: 2 of 3
+    assert interval(m, "lowest_class")[0] == pytest.approx(1 / 2)
+    assert interval(m, "within_30_sym")[0] == pytest.approx(4 / 5) and interval(m, "within_30")[0] == 2 / 5
+    both = intervals(m, ["accuracy", "class_mean", "lowest_class"], n_boot=300)
+    for what, got in both.items():
+        assert got == interval(m, what, n_boot=300)
+    _, lo, hi = both["lowest_class"]
+    assert lo <= both["class_mean"][1] and hi <= both["class_mean"][2]           # the lowest class is below the mean
+    one = {"per_query": {**q, "class": ["x"] * 5, "pred": ["x", "y", "x", "x", "y"]}}   # one class: class mean = accuracy
+    assert interval(one, "class_mean", n_boot=300) == pytest.approx(interval(one, "accuracy", n_boot=300))
+    with pytest.raises(ValueError, match="unknown statistic 'speed'"):
+        intervals(m, ["accuracy", "speed"])

@@ -57,10 +57,12 @@ def check_method(method: str, pose: str | None) -> str:
     return pose
 
 
-def load_method(method: str, run, profile="cpu", progress: bool = True, max_steps: int | None = None):
+def load_method(method: str, run, profile="cpu", progress: bool = True, max_steps: int | None = None,
+                seed: int = 0):
     """The baseline ``method`` of run folder ``run`` (a RunDir or a path): loaded from its file, or
-    fitted on the run's training grids (``beo``, ``icp``) or trained on its rendered set (``voxcnn``;
-    ``max_steps`` ends its training after that many optimizer steps) and saved first."""
+    fitted on the run's training grids (``beo``, ``icp``) or trained on its rendered set (``voxcnn``,
+    with training seed ``seed``; ``max_steps`` ends its training after that many optimizer steps) and
+    saved first."""
     check_method(method, None)
     if method == "hbeo":
         raise ValueError("hbeo is the model itself: wrap it in hbeo.evaluation.method.HBEOMethod "
@@ -71,7 +73,7 @@ def load_method(method: str, run, profile="cpu", progress: bool = True, max_step
         from hbeo.baselines.voxcnn import VoxCNNBaseline, train_voxcnn
         if path.exists():
             return VoxCNNBaseline.load(path)
-        return train_voxcnn(run, profile, progress=progress, max_steps=max_steps)
+        return train_voxcnn(run, profile, seed=seed, progress=progress, max_steps=max_steps)
     from hbeo.baselines.beo import BEO
     from hbeo.baselines.icp import ICPBaseline
     from hbeo.data.gridset import GridSet

@@ -398,7 +398,8 @@ def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progres
                  max_steps: int | None = None) -> "VoxCNNBaseline":
     """Train VoxCNN on the partial training grids of ``run`` (a RunDir or a path;
     :func:`partial_training_set`) with the profile's ``voxcnn_*`` sizes, split by object for
-    validation, in the project's loop (checkpoints in ``RunDir.training``; a rerun resumes
+    validation (with seed 0 whatever ``seed`` is: the training seed changes the initial weights and
+    the batch order, never which objects are held out), in the project's loop (checkpoints in ``RunDir.training``; a rerun resumes
     exactly); writes ``RunDir.baseline("voxcnn")`` once training is done and returns the
     :class:`VoxCNNBaseline`. ``epochs`` overrides the profile's; ``max_steps`` ends training after
     that many optimizer steps; ``stop_after_epoch`` (< epochs) ends early without writing the model
@@ -407,7 +408,7 @@ def train_voxcnn(run, profile, epochs: int | None = None, seed: int = 0, progres
     run = RunDir.of(run)
     prof = config.get_profile(profile)
     data = partial_training_set(run, prof.baselines.voxcnn_views_per_object, progress=progress)
-    tr, va = data.split(val_fraction, seed)
+    tr, va = data.split(val_fraction, 0)
     task = VoxCNNTask(VoxCNNConfig(channels=prof.baselines.voxcnn_channels, n_classes=len(data.classes),
                                    bottleneck=prof.baselines.voxcnn_bottleneck), pos_weight=prof.baselines.voxcnn_pos_weight)
     tc = TrainConfig(epochs=int(epochs or prof.baselines.voxcnn_epochs), batch_size=prof.baselines.voxcnn_batch_size, lr=prof.baselines.voxcnn_lr,

@@ -4,13 +4,26 @@ The views of one object are not independent queries (three views of a monitor sh
 intervals resample *objects* with replacement, keeping all of each object's views (a cluster
 bootstrap), using the ``object`` column of a metrics dict's ``per_query``
 (:mod:`hbeo.evaluation.evaluate`). Percentile intervals, ``n_boot`` resamples from a seeded
-generator: the same inputs give the same interval.
+generator: the same inputs give the same interval. :func:`intervals` gives several statistics on the
+same resamples, among them per-class ones (the mean and the lowest of the class accuracies), which a
+resample computes over the classes it holds. Used for one run's figures alone (the seed table,
+:mod:`hbeo.report.seeds`); comparisons between methods use :mod:`hbeo.evaluation.paired`.
 
 May import: foundation.
 """
 from __future__ import annotations
 
 import numpy as np
+
+
+def _correct(q) -> np.ndarray:
+    return np.asarray(q["class"]) == np.asarray(q["pred"])
+
+
+def _class_means(values: np.ndarray, classes: np.ndarray) -> np.ndarray:
+    """Mean of ``values`` per class present (``classes``: (n,) integer codes)."""
+    n = np.bincount(classes)
+    return (np.bincount(classes, weights=values) / np.maximum(n, 1))[n > 0]
 
 
 def class_mean(values, classes) -> float:
@@ -27,29 +40,42 @@ def class_mean(values, classes) -> float:
         raise ValueError(f"class_mean: values {values.shape} and classes {classes.shape} must be the same (n,)")
     if not len(values):
         return float("nan")
-    _, code = np.unique(classes, return_inverse=True)
-    n = np.bincount(code)
-    return float(np.mean(np.bincount(code, weights=values)[n > 0] / n[n > 0]))
+    return float(np.mean(_class_means(values, np.unique(classes, return_inverse=True)[1])))
 
 
-def _correct(q) -> np.ndarray:
-    return np.asarray(q["class"]) == np.asarray(q["pred"])
+#: How a statistic reduces its per-query values; ``class_mean`` and ``class_min`` see each query's class
+#: (the mean and the lowest of the per-class means: every class counts the same).
+REDUCTIONS = {"mean": lambda v, c: float(np.mean(v)), "median": lambda v, c: float(np.median(v)),
+              "class_mean": lambda v, c: float(np.mean(_class_means(v, c))),
+              "class_min": lambda v, c: float(np.min(_class_means(v, c)))}
 
-
-def _within_30(column: str):
-    return lambda q: np.asarray(q[column], np.float64) < 30
-
-
-#: What :func:`interval` can summarize: statistic -> (per-query column, reduction: ``mean``, ``median`` or
-#: ``class_mean``, the mean over classes of each class's mean, :func:`class_mean`).
+#: What :func:`interval` can summarize: statistic -> (per-query values, reduction of :data:`REDUCTIONS`).
 STATISTICS = {
     "accuracy": (_correct, "mean"),
-    "class_mean": (_correct, "class_mean"),
+    "class_mean": (_correct, "class_mean"),                 # the paper's Table I total
+    "lowest_class": (_correct, "class_min"),                # the accuracy of the worst class
     "pose_median": (lambda q: np.asarray(q["pose_deg"], np.float64), "median"),
-    "within_30": (_within_30("pose_deg"), "mean"),
-    "within_30_sym": (_within_30("pose_sym_deg"), "mean"),       # modulo each class's symmetry turns
+    "within_30": (lambda q: np.asarray(q["pose_deg"], np.float64) < 30, "mean"),
+    "within_30_sym": (lambda q: np.asarray(q["pose_sym_deg"], np.float64) < 30, "mean"),
     "iou": (lambda q: np.asarray(q["iou"], np.float64), "mean"),
 }
+
+
+def _resamples(groups: np.ndarray, n_boot: int, seed: int):
+    """``n_boot`` index arrays, each the queries of as many groups drawn with replacement."""
+    _, idx = np.unique(groups, return_inverse=True)
+    members = np.split(np.argsort(idx, kind="stable"), np.cumsum(np.bincount(idx))[:-1])
+    rng = np.random.default_rng(seed)
+    for _ in range(n_boot):
+        pick = rng.integers(0, len(members), len(members))
+        yield np.concatenate([members[g] for g in pick])
+
+
+def _check(values: np.ndarray, groups: np.ndarray, level: float) -> None:
+    if values.shape != groups.shape or values.ndim != 1 or len(values) == 0:
+        raise ValueError(f"values {values.shape} and groups {groups.shape} must be equal, non-empty 1-D")
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1), got {level}")
 
 
 def cluster_bootstrap(values: np.ndarray, groups, stat=np.mean, n_boot: int = 2000, level: float = 0.95,
@@ -59,46 +85,52 @@ def cluster_bootstrap(values: np.ndarray, groups, stat=np.mean, n_boot: int = 20
     brings all of its values)."""
     values = np.asarray(values, np.float64)
     groups = np.asarray(groups)
-    if values.shape != groups.shape or values.ndim != 1 or len(values) == 0:
-        raise ValueError(f"values {values.shape} and groups {groups.shape} must be equal, non-empty 1-D")
-    if not 0 < level < 1:
-        raise ValueError(f"level must be in (0, 1), got {level}")
-    _, idx = np.unique(groups, return_inverse=True)
-    members = np.split(np.argsort(idx, kind="stable"), np.cumsum(np.bincount(idx))[:-1])
-    rng = np.random.default_rng(seed)
-    draws = np.empty(n_boot)
-    for b in range(n_boot):
-        pick = rng.integers(0, len(members), len(members))
-        draws[b] = stat(values[np.concatenate([members[g] for g in pick])])
+    _check(values, groups, level)
+    draws = np.array([stat(values[i]) for i in _resamples(groups, n_boot, seed)])
     lo, hi = np.quantile(draws, [(1 - level) / 2, (1 + level) / 2])
     return float(stat(values)), float(lo), float(hi)
 
 
-def _values_and_stat(metrics: dict, what: str):
-    """(values (n,), stat) of ``what`` for a metrics dict: for ``class_mean`` the values are query indices
-    and the statistic looks up their correctness and class (a resample keeps each query's class)."""
-    if what not in STATISTICS:
-        raise ValueError(f"unknown statistic {what!r}; expected one of {', '.join(STATISTICS)}")
+def intervals(metrics: dict, whats, n_boot: int = 2000, level: float = 0.95,
+              seed: int = 0) -> dict[str, tuple[float, float, float]]:
+    """{what: (estimate, low, high)} for each of ``whats`` (:data:`STATISTICS`) of a metrics dict, all on
+    the same ``n_boot`` resamples of its objects (:func:`cluster_bootstrap`'s, so each equals
+    :func:`interval` of that statistic alone); a metrics dict without per-query object ids (older
+    files) resamples queries."""
+    unknown = [w for w in whats if w not in STATISTICS]
+    if unknown:
+        raise ValueError(f"unknown statistic {unknown[0]!r}; expected one of {', '.join(STATISTICS)}")
     q = metrics["per_query"]
-    column, reduce = STATISTICS[what]
-    values = column(q).astype(np.float64)
-    if reduce == "class_mean":
-        classes = np.asarray(q["class"])
-        return np.arange(len(values), dtype=np.float64), lambda i: class_mean(values[i.astype(int)],
-                                                                                 classes[i.astype(int)])
-    return values, np.median if reduce == "median" else np.mean
+    values = {w: STATISTICS[w][0](q).astype(np.float64) for w in whats}
+    n = len(q["class"])
+    groups = np.asarray(q.get("object") or list(range(n)))
+    _, classes = np.unique(np.asarray(q["class"]), return_inverse=True)
+    for v in values.values():
+        _check(v, groups, level)
+    red = {w: REDUCTIONS[STATISTICS[w][1]] for w in whats}
+    draws = {w: [] for w in whats}
+    for i in _resamples(groups, n_boot, seed):
+        for w in whats:
+            draws[w].append(red[w](values[w][i], classes[i]))
+    out = {}
+    for w in whats:
+        lo, hi = np.quantile(draws[w], [(1 - level) / 2, (1 + level) / 2])
+        out[w] = (red[w](values[w], classes), float(lo), float(hi))
+    return out
 
 
 def estimate(metrics: dict, what: str) -> float:
     """``what`` (:data:`STATISTICS`) of a metrics dict's ``per_query`` columns, without resampling."""
-    values, stat = _values_and_stat(metrics, what)
-    return float(stat(values))
+    if what not in STATISTICS:
+        raise ValueError(f"unknown statistic {what!r}; expected one of {', '.join(STATISTICS)}")
+    q = metrics["per_query"]
+    column, reduce = STATISTICS[what]
+    return REDUCTIONS[reduce](column(q).astype(np.float64), np.unique(np.asarray(q["class"]), return_inverse=True)[1])
 
 
 def interval(metrics: dict, what: str, **kw) -> tuple[float, float, float]:
-    """(estimate, low, high) of ``what`` (:data:`STATISTICS`: accuracy, class_mean, pose_median, within_30,
-    within_30_sym, iou) for a metrics dict, objects resampled (:func:`cluster_bootstrap`); a metrics dict
-    without per-query object ids (older files) resamples queries."""
-    values, stat = _values_and_stat(metrics, what)
-    groups = metrics["per_query"].get("object") or list(range(len(values)))
-    return cluster_bootstrap(values, np.asarray(groups), stat=stat, **kw)
+    """(estimate, low, high) of ``what`` (:data:`STATISTICS`: accuracy, class_mean, lowest_class,
+    pose_median, within_30, within_30_sym, iou) for a metrics dict, objects resampled
+    (:func:`cluster_bootstrap`); a metrics dict without per-query object ids (older files) resamples
+    queries."""
+    return intervals(metrics, [what], **kw)[what]

@@ -142,9 +142,11 @@ class TrainOptions:
     sampler / views / backend: the training views' sampler, views per object and render backend (render
     settings; ``torch`` with ``data="stream"``: batches rendered on the training device); loss: the
     weights gamma_c, gamma_o, gamma_p of the paper's loss; val_fraction: objects held out for validation;
-    name: the model file in the run folder; max_steps: stop after that many optimizer steps (the
-    schedule ends there); checkpoint_every: also checkpoint every that many steps; loader_workers:
-    DataLoader worker processes (0: in this process)."""
+    seed: the training seed (initial weights, batch order, augmentation; None: the run's,
+    :attr:`hbeo.run.Run.training_seed`, 0 unless asked, and 0 outside a Run); name: the model file in
+    the run folder; max_steps: stop after that many optimizer steps (the schedule ends there);
+    checkpoint_every: also checkpoint every that many steps; loader_workers: DataLoader worker processes
+    (0: in this process)."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -159,7 +161,7 @@ class TrainOptions:
     backend: str = "auto"
     loss: LossWeights = field(default_factory=LossWeights)
     val_fraction: float = 0.1
-    seed: int = 0
+    seed: int | None = None
     name: str = DEFAULT_MODEL
     max_steps: int | None = None
     checkpoint_every: int | None = None
@@ -245,7 +247,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["class_balance"] = "sampler"
         train_set = ClassBalanced(data.train, data.train_labels)
     tc = TrainConfig(epochs=opts.epochs or prof.recipe.epochs, batch_size=prof.recipe.batch_size, lr=prof.recipe.lr,
-                     seed=opts.seed, progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
+                     seed=opts.seed or 0, progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
                      max_steps=opts.max_steps, data=how, checkpoint_every=opts.checkpoint_every,
                      num_workers=opts.loader_workers)
     task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None,

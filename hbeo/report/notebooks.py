@@ -1,7 +1,8 @@
 """Running the numbered notebooks (``notebooks/NN_name.ipynb``) with papermill into a run folder.
 
 :func:`run_notebooks` executes them in order with the parameters ``profile``, ``dataset`` and
-``out_dir``; each executed copy goes to :meth:`hbeo.rundir.RunDir.notebook`, and the run's
+``out_dir`` (and ``training_seed``, the seed of every model the run trains, when it is not 0: a
+seed-0 run is executed exactly as before the option existed); each executed copy goes to :meth:`hbeo.rundir.RunDir.notebook`, and the run's
 manifest (:mod:`hbeo.report.provenance`) gets its wall time. :func:`preflight` fails in
 seconds, with what to do, what would otherwise fail hours later.
 
@@ -34,8 +35,11 @@ def notebooks(only=None) -> list[Path]:
 
 
 def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=None, only=None,
-                  fresh: bool = False) -> list[Path]:
-    """Execute notebooks in order with parameters ``profile``, ``dataset``, ``out_dir``.
+                  fresh: bool = False, training_seed: int = 0) -> list[Path]:
+    """Execute notebooks in order with parameters ``profile``, ``dataset``, ``out_dir`` and, when not 0,
+    ``training_seed`` (:attr:`hbeo.run.Run.training_seed`: HBEONet's and the 3-D CNN's training seed; the
+    data, renderings and test views keep seed 0, so every seed's run scores the same test images).
+    ``out_dir`` defaults to ``results/PROFILE-DATASET``, ``-seed<S>`` appended for a seed S other than 0.
 
     Each executed copy is written into the run folder under the notebook's name; a progress line
     per notebook says what runs and how long it took; the run's ``manifest.json`` is updated after
@@ -49,22 +53,26 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     import papermill as pm
     from hbeo.report.reproduction_md import write_reports
     nbs = notebooks(only)                    # an unknown --only fails before anything is opened
-    run = preflight(profile, dataset, out_dir).dir
+    run = preflight(profile, dataset, out_dir, training_seed).dir
+    if not fresh:
+        check_training_seed(run, training_seed)
+    params = {"profile": profile, "dataset": dataset, "out_dir": str(run.path)}
+    if training_seed:
+        params["training_seed"] = training_seed
     if fresh:
         for p in clear_products(run):
             print(f"[hbeo] fresh run: removed {p}", flush=True)
-        write_manifest(run, profile, dataset, fresh=True)
+        write_manifest(run, profile, dataset, fresh=True, training_seed=training_seed)
     done = []
     t_all = time.perf_counter()
     for k, nb in enumerate(nbs, 1):
         target = run.notebook(nb.stem)
-        print(f"[hbeo {k}/{len(nbs)}] {nb.name} (profile={profile}, dataset={dataset}) -> {target}", flush=True)
+        seed = f", training seed {training_seed}" if training_seed else ""
+        print(f"[hbeo {k}/{len(nbs)}] {nb.name} (profile={profile}, dataset={dataset}{seed}) -> {target}", flush=True)
         t0 = time.perf_counter()
-        pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS),
-                            parameters={"profile": profile, "dataset": dataset, "out_dir": str(run.path)},
-                            progress_bar=False)
+        pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS), parameters=params, progress_bar=False)
         sec = time.perf_counter() - t0
-        write_manifest(run, profile, dataset, {nb.stem: round(sec, 1)})
+        write_manifest(run, profile, dataset, {nb.stem: round(sec, 1)}, training_seed=training_seed)
         print(f"[hbeo {k}/{len(nbs)}] {nb.name} done in {sec / 60:.1f} min "
               f"(total {(time.perf_counter() - t_all) / 60:.1f} min)", flush=True)
         done.append(target)
@@ -72,6 +80,20 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         for path in write_reports(run, profile, dataset):
             print(f"[hbeo] wrote {path}", flush=True)
     return done
+
+
+def check_training_seed(run, training_seed: int) -> None:
+    """HBEOError when the manifest of the run folder ``run`` records another training seed than
+    ``training_seed``: its models would be of two seeds (a folder without a manifest takes any)."""
+    import json
+    from hbeo.errors import HBEOError
+    run = RunDir.of(run)
+    if not run.manifest.is_file():
+        return
+    recorded = (json.loads(run.manifest.read_text()).get("seeds") or {}).get("training", 0)
+    if recorded != training_seed:
+        raise HBEOError(f"{run.manifest}: the run's models were trained with training seed {recorded}, not "
+                        f"{training_seed}; pass --seed {recorded}, or --fresh to train them all again, or another --out")
 
 
 def clear_products(run) -> list[Path]:
@@ -95,11 +117,12 @@ def clear_products(run) -> list[Path]:
     return out
 
 
-def preflight(profile: str, dataset: str, out_dir=None):
+def preflight(profile: str, dataset: str, out_dir=None, training_seed: int = 0):
     """Fail in seconds, with what to do, instead of hours later: the profile must exist, the dataset
     must be readable (``modelnet10`` is downloaded first when missing; without a network that fails
     with the downloader's message), and a profile that ``needs_gpu`` (``full``) needs CUDA unless
-    ``HBEO_ALLOW_CPU=1``. Returns the :class:`hbeo.run.Run` (its folder ``out_dir`` created only then)."""
+    ``HBEO_ALLOW_CPU=1``. Returns the :class:`hbeo.run.Run` of ``training_seed`` (its folder ``out_dir``,
+    by default :func:`hbeo.config.run_path`'s, created only then)."""
     from hbeo.errors import HBEOError, MissingDataError
     from hbeo.run import Run
     prof = config.get_profile(profile)
@@ -111,9 +134,9 @@ def preflight(profile: str, dataset: str, out_dir=None):
                             f"to torch (install the CUDA build of torch, or set HBEO_ALLOW_CPU=1 to run it on the "
                             f"CPU anyway: days)")
     try:
-        return Run.open(prof, dataset, out_dir)
+        return Run.open(prof, dataset, out_dir, training_seed=training_seed)
     except MissingDataError:
         if dataset != "modelnet10":
             raise
         print("[hbeo] ModelNet10 meshes missing: downloading (about 0.5 GB)", flush=True)
-        return Run.open(prof, dataset, out_dir, download=True)
+        return Run.open(prof, dataset, out_dir, training_seed=training_seed, download=True)

@@ -3,9 +3,11 @@
 It records the profile and its settings, the dataset, the git commit and tag, whether the working
 tree had uncommitted changes outside ``results/`` (the run writes there), the code version of the
 evaluations (:func:`hbeo.evaluation.protocol.code_version`), package versions, this machine's
-hardware (:func:`hardware`), the seeds, for every notebook its wall time and the commit it ran at,
-how each model of the run was trained (from scratch, or resumed from a checkpoint of an interrupted
-run: ``train_*/provenance.json``) and the command line. Written atomically; each update merges the
+hardware (:func:`hardware`), the seeds (``seeds.training``: the run's training seed, 0 unless
+``python -m hbeo reproduce --seed`` asked for another; evaluation and rendering always :data:`SEED`),
+for every notebook its wall time and the commit it ran at, how each model of the run was trained (from
+scratch, or resumed from a checkpoint of an interrupted run: ``train_*/provenance.json``) and the
+command line. Written atomically; each update merges the
 notebooks into those already recorded.
 
 May import: foundation and :mod:`hbeo.evaluation.protocol` (torch only to describe the hardware).
@@ -96,10 +98,12 @@ def training_records(run) -> dict:
     return out
 
 
-def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, fresh: bool = False) -> dict:
+def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, fresh: bool = False,
+                   training_seed: int = 0) -> dict:
     """Create or update the run's ``manifest.json`` (atomically); ``wall_s`` {notebook: seconds} is
     merged into the notebooks already there, each with the commit it ran at (``fresh``: forget the
-    notebooks of earlier runs). ``run``: a RunDir or a path. Returns the manifest."""
+    notebooks of earlier runs); ``training_seed``: the seed the run's models were trained with
+    (:attr:`hbeo.run.Run.training_seed`). ``run``: a RunDir or a path. Returns the manifest."""
     from hbeo.evaluation.protocol import code_version
     run = RunDir.of(run)
     old = {} if fresh or not run.manifest.exists() else json.loads(run.manifest.read_text())
@@ -110,7 +114,7 @@ def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, 
                      "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     m = {"profile": profile, "dataset": dataset, "profile_settings": config.get_profile(profile).to_dict(),
          **git, "code_version": code_version(), "versions": versions(), "hardware": hardware(),
-         "seeds": {"training": SEED, "evaluation": SEED, "rendering": SEED},
+         "seeds": {"training": int(training_seed), "evaluation": SEED, "rendering": SEED},
          "notebooks": nbs, "training": training_records(run),
          "one_commit": len({n["commit"] for n in nbs.values()}) <= 1 and not any(n["dirty"] for n in nbs.values()),
          "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": " ".join(sys.argv)}

@@ -1,0 +1,208 @@
+"""The spread over training seeds: runs of one profile and dataset whose models were trained with
+different seeds (``python -m hbeo reproduce --seed S``), set side by side in one table.
+
+A run's figure is uncertain in two ways: which test objects happened to be drawn (its 95 % interval
+over objects, :mod:`hbeo.evaluation.intervals`) and how its training happened to go (initial weights,
+batch order, augmentation: the training seed, :attr:`hbeo.run.Run.training_seed`). :func:`seed_table`
+reads the metrics files ``eval_<method>_<pose>.json`` (:meth:`hbeo.rundir.RunDir.evaluation`) that every
+run holds and gives, for each method and measure (:data:`MEASURES`), each seed's figure with its interval
+over objects, and the mean, sample standard deviation and range over the seeds. The seeds must be
+paired, every run scoring the very same test images: it refuses (DataError naming the file and the
+problem) a folder without a run manifest, runs of another profile or dataset, a training seed given
+twice, and an evaluation of other test images than the first run's (another dataset, split, views, view
+seed, sampler, noise, objects per class, or other (object, view) pairs). :func:`write_seed_table` writes
+the table as ``seeds_table.csv`` and ``seeds_table.md`` (:data:`hbeo.report.tables.SEEDS`), by default
+into the first run's folder (``python -m hbeo report --seeds RUN RUN ...``).
+
+May import: foundation, :mod:`hbeo.evaluation` and the other report modules.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from hbeo.errors import DataError, HBEOError
+from hbeo.evaluation.intervals import intervals
+from hbeo.evaluation.method import label
+from hbeo.evaluation.paired import LEVEL, N_BOOT
+from hbeo.evaluation.protocol import COMPLETION, EVALUATIONS, POSE, TABLE1
+from hbeo.report import tables
+from hbeo.rundir import RunDir
+
+
+#: statistic of :data:`hbeo.evaluation.intervals.STATISTICS` -> (what the table calls it, the settings
+#: (method, pose) it applies to: those of the notebooks' Table I, pose figure and completion figure,
+#: shown as a percentage)
+MEASURES = {
+    "class_mean": ("class mean accuracy", TABLE1, True),
+    "accuracy": ("accuracy", TABLE1, True),
+    "lowest_class": ("lowest class accuracy", TABLE1, True),
+    "within_30": ("within 30°", POSE, True),
+    "within_30_sym": ("within 30° modulo symmetry", POSE, True),
+    "iou": ("mean IoU", COMPLETION, False),
+}
+#: What must agree between two runs' evaluations of one setting for them to score the same test images:
+#: the metrics dict's own fields, and those of its cache key (``request``, :func:`hbeo.evaluation.protocol.request`).
+PAIRING = ("dataset", "split", "views", "seed", "sampler", "noise")
+REQUEST_PAIRING = {"per_class": "objects per class", "dataset_fingerprint": "dataset fingerprint"}
+
+
+@dataclass(frozen=True)
+class SeedRun:
+    """A run folder as its manifest describes it."""
+
+    dir: RunDir
+    profile: str
+    dataset: str
+    training_seed: int
+
+
+def read_run(run) -> SeedRun:
+    """The profile, dataset and training seed (``seeds.training``) of run folder ``run`` from its
+    ``manifest.json`` (:mod:`hbeo.report.provenance`); DataError naming the manifest when there is none
+    or it does not say."""
+    run = RunDir.of(run)
+    if not run.manifest.is_file():
+        raise DataError(run.manifest, "missing: not a run folder of python -m hbeo reproduce (its manifest "
+                                      "names the profile, dataset and training seed)")
+    try:
+        man = json.loads(run.manifest.read_text())
+    except (OSError, ValueError) as err:
+        raise DataError(run.manifest, f"unreadable ({type(err).__name__}: {err})") from None
+    seed = (man.get("seeds") or {}).get("training") if isinstance(man, dict) else None
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0 or not man.get("profile") \
+            or not man.get("dataset"):
+        raise DataError(run.manifest, "records no profile, dataset or training seed (seeds.training)")
+    return SeedRun(run, str(man["profile"]), str(man["dataset"]), seed)
+
+
+def _check_runs(runs: list[SeedRun]) -> None:
+    first = runs[0]
+    seen = {}
+    for r in runs:
+        if (r.profile, r.dataset) != (first.profile, first.dataset):
+            raise DataError(r.dir.manifest, f"profile {r.profile}, dataset {r.dataset}; {first.dir.path} is profile "
+                                            f"{first.profile}, dataset {first.dataset}: a seed table compares runs "
+                                            f"of one profile and dataset")
+        if r.training_seed in seen:
+            raise DataError(r.dir.manifest, f"training seed {r.training_seed} again ({seen[r.training_seed]} has "
+                                            f"it too): a seed table takes one run per training seed")
+        seen[r.training_seed] = r.dir.path
+
+
+def _evaluation(run: SeedRun, method: str, pose: str) -> dict:
+    path = run.dir.evaluation(method, pose)
+    try:
+        m = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise DataError(path, f"unreadable ({type(err).__name__}: {err})") from None
+    if not isinstance(m, dict) or not (m.get("per_query") or {}).get("object"):
+        raise DataError(path, "no per-query object ids (a file older than the paired protocol): evaluate again")
+    return m
+
+
+def _pairing(m: dict) -> dict:
+    req = m.get("request") or {}
+    return {**{k: m.get(k) for k in PAIRING}, **{name: req.get(k) for k, name in REQUEST_PAIRING.items()}}
+
+
+def _pairs(m: dict) -> set:
+    q = m["per_query"]
+    return set(zip(q["class"], q["object"], q["view"]))
+
+
+def _check_paired(path: Path, m: dict, first_path: Path, first: dict) -> None:
+    a, b = _pairing(m), _pairing(first)
+    if diff := [f"{k} {a[k]!r} here, {b[k]!r} there" for k in a if a[k] != b[k]]:
+        raise DataError(path, f"scores other test images than {first_path} ({'; '.join(diff)}): the seeds of a "
+                              f"seed table must be evaluated on the same images")
+    pa, pb = _pairs(m), _pairs(first)
+    if pa != pb:
+        raise DataError(path, f"scores other (object, view) pairs than {first_path} ({len(pa)} here, {len(pb)} "
+                              f"there, {len(pa & pb)} in both): the seeds of a seed table must be evaluated on "
+                              f"the same images")
+
+
+def _read_runs(runs) -> list[SeedRun]:
+    """The runs (:func:`read_run`), checked to make one seed table, in the order of their training seeds."""
+    runs = list(runs)
+    if len(runs) < 2:
+        raise HBEOError(f"a seed table needs at least 2 run folders, one per training seed; got {len(runs)}"
+                        + (f" ({runs[0]})" if runs else ""))
+    read = [read_run(r) for r in runs]
+    _check_runs(read)
+    return sorted(read, key=lambda r: r.training_seed)
+
+
+def seed_table(runs, n_boot: int = N_BOOT, level: float = LEVEL) -> pd.DataFrame:
+    """One row per evaluated setting (method, pose) and measure (:data:`MEASURES`) that applies to it, over
+    the run folders ``runs`` (at least 2; one profile and dataset, one per training seed, checked, see the
+    module docstring), runs in the order of their seeds: ``method``, ``pose``, ``label``, ``statistic``,
+    ``measure``, ``seeds`` (how many), ``mean``, ``sd`` (sample standard deviation, n - 1), ``min``, ``max``
+    of the seeds' figures, then for each seed S ``seed S`` (its figure) and ``seed S low``, ``seed S high``
+    (its interval at ``level`` over test objects, ``n_boot`` resamples, :func:`hbeo.evaluation.intervals.intervals`).
+    Figures are fractions (an IoU for ``iou``). The settings are those of
+    :data:`hbeo.evaluation.protocol.EVALUATIONS` whose metrics file every run holds."""
+    found = _read_runs(runs)
+    settings = [k for k in EVALUATIONS if all(r.dir.evaluation(*k).is_file() for r in found)]
+    if not settings:
+        raise DataError(found[0].dir.path, "no eval_<method>_<pose>.json that every run of the seed table holds "
+                                           "(run the notebooks 04-07 in each)")
+    rows = []
+    for key in settings:
+        evals = [_evaluation(r, *key) for r in found]
+        for r, m in zip(found[1:], evals[1:]):
+            _check_paired(r.dir.evaluation(*key), m, found[0].dir.evaluation(*key), evals[0])
+        stats = [s for s, (_, applies, _) in MEASURES.items() if key in applies]
+        if not stats:
+            continue
+        per_seed = [intervals(m, stats, n_boot=n_boot, level=level) for m in evals]
+        for s in stats:
+            v = np.array([p[s][0] for p in per_seed])
+            row = {"method": key[0], "pose": key[1], "label": label(evals[0]), "statistic": s,
+                   "measure": MEASURES[s][0], "seeds": len(v), "mean": float(v.mean()), "sd": float(v.std(ddof=1)),
+                   "min": float(v.min()), "max": float(v.max())}
+            for r, p in zip(found, per_seed):
+                t = r.training_seed
+                row[f"seed {t}"], row[f"seed {t} low"], row[f"seed {t} high"] = p[s]
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def markdown_view(table: pd.DataFrame) -> pd.DataFrame:
+    """:func:`seed_table` to read: per row the method, the measure (with its unit), each seed's figure
+    "value [low, high]", "mean ± sd" and "min – max" (percentages to 0.1, IoU to 0.001)."""
+    seeds = [c for c in table.columns if c.startswith("seed ") and not c.endswith((" low", " high"))]
+    out = []
+    for _, r in table.iterrows():
+        pct = MEASURES[r["statistic"]][2]
+        scale, f = (100, "{:.1f}") if pct else (1, "{:.3f}")
+
+        def num(x):
+            return f.format(scale * x)
+        row = {"method": r["label"], "measure": r["measure"] + (" (%)" if pct else "")}
+        row.update({c: f"{num(r[c])} [{num(r[c + ' low'])}, {num(r[c + ' high'])}]" for c in seeds})
+        row["mean ± sd"] = f"{num(r['mean'])} ± {num(r['sd'])}"
+        row["min – max"] = f"{num(r['min'])} – {num(r['max'])}"
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def write_seed_table(runs, out=None, n_boot: int = N_BOOT, level: float = LEVEL) -> tuple[Path, Path]:
+    """:func:`seed_table` of ``runs`` written as ``seeds_table.csv`` (numbers) and ``seeds_table.md``
+    (:func:`markdown_view`, with a note naming the runs) into the folder ``out`` (default: the first run
+    folder given), atomically (:func:`hbeo.report.tables.save_table`). Returns both paths."""
+    runs = list(runs)
+    table = seed_table(runs, n_boot=n_boot, level=level)
+    found = _read_runs(runs)
+    note = (f"\n\n{len(found)} runs of profile {found[0].profile} on {found[0].dataset}, one per training seed: "
+            + ", ".join(f"`{r.dir.name}` (seed {r.training_seed})" for r in found)
+            + f". Each seed's figure with its {level * 100:g} % interval over test objects (bootstrap over the objects "
+              f"of the whole split, {n_boot} resamples); every run scored the same test images. Mean ± sample standard deviation "
+              f"(n − 1) and range over the seeds.\n")
+    return tables.save_table(table, out if out is not None else runs[0], tables.SEEDS,
+                             markdown=markdown_view(table), note=note)
