@@ -9,6 +9,7 @@
 - :mod:`~hbeo.report.readings`: ``REPRODUCTION.md``'s section on the paper's claims under each reading of the
   view protocol;
 - :mod:`~hbeo.report.seeds`: the spread over training seeds of runs that differ only in that seed;
+- :mod:`~hbeo.report.compare`: whether two run folders' tables agree, the measured timing columns aside;
 - :mod:`~hbeo.report.notebooks`: running the numbered notebooks with papermill;
 - :mod:`~hbeo.report.book`: the run's static, offline HTML book.
 
