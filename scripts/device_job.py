@@ -2,7 +2,7 @@
 leave what must come back under a lent GPU machine's transfer limits.
 
     python scripts/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
-                                 [--out DIR] [--wait SECONDS]
+                                 [--out DIR] [--wait SECONDS] [--budget SECONDS]
 
 One call does what is left, never more than ``--wait`` seconds in the foreground:
 
@@ -12,6 +12,11 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    the last checkpoint), then the paired HBEO evaluation on the whole test split
    (:func:`hbeo.evaluation.protocol.evaluation`), then ``lease.json`` (device, wall time per stage,
    images seen, resumed step, the command).
+   With ``--budget SECONDS`` the worker fits the whole job into that wall time: it makes the subspace, times
+   ``--calibrate`` steps of the real training (a throw-away model, ``calibration.hbeo``), and trains the real
+   model for the number of steps that fit (the schedule ends there, as with ``--max-steps``), keeping
+   ``--eval-reserve`` seconds for the evaluation; ``lease.json`` says what was measured, the steps planned
+   by the profile and the steps trained. A restarted worker keeps the step count it chose first.
 2. It waits for the worker until it finishes or ``--wait`` runs out (then it says so: call again, on the
    same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
@@ -110,8 +115,42 @@ def round_weights_bf16(path: Path) -> None:
     model.save(path)
 
 
+def fit_budget(run, args, t_start: float) -> dict:
+    """How many training steps fit ``args.budget`` seconds of this worker (counted from ``t_start``): the
+    subspace first (the real run reuses it), then ``args.calibrate`` steps of the real training into a
+    throw-away model; from the calibration's wall time and its in-loop images/s, the fixed cost of a
+    training (data on the device, validation, saving) and the time per step. The steps are those left
+    once the fixed cost, ``args.eval_reserve`` seconds for the evaluation and a 5 % margin are set aside
+    (at least ``args.calibrate``: a budget too small still trains a little, and says so)."""
+    from hbeo.model.fit import TrainOptions
+    from hbeo.model.loop import training_history
+    t = time.perf_counter()
+    run.subspace(progress=False)
+    subspace_s = time.perf_counter() - t
+    t = time.perf_counter()
+    cal = run.train(TrainOptions(name="calibration.hbeo", max_steps=args.calibrate), progress=False)
+    calibration_s = time.perf_counter() - t
+    row = training_history(run.dir.training(cal.path))[-1]
+    batch = run.profile.recipe.batch_size
+    loop_s = row["step"] * batch / row["images_per_s"]
+    step_s = loop_s / row["step"]
+    fixed_s = max(calibration_s - loop_s, 0.0)
+    left = args.budget - (time.perf_counter() - t_start) - args.eval_reserve - fixed_s
+    steps = int(0.95 * left / step_s)
+    out = {"seconds": args.budget, "subspace_s": round(subspace_s, 1), "calibration_steps": int(row["step"]),
+           "calibration_s": round(calibration_s, 1), "step_s": round(step_s, 4), "fixed_s": round(fixed_s, 1),
+           "calibration_images_per_s": round(row["images_per_s"], 1), "eval_reserve_s": args.eval_reserve,
+           "max_steps": max(steps, args.calibrate), "too_small": steps < args.calibrate}
+    if args.max_steps:
+        out["max_steps"] = min(out["max_steps"], args.max_steps)
+    print(f"[worker] budget {args.budget:.0f} s: {step_s * 1000:.0f} ms a step of {batch} images "
+          f"({row['images_per_s']:.0f} images/s), fixed {fixed_s:.0f} s: training {out['max_steps']} steps", flush=True)
+    return out
+
+
 def worker(args) -> int:
     """The background process: train (resuming from the checkpoint), evaluate, write lease.json."""
+    t_start = time.perf_counter()
     from hbeo.evaluation import protocol
     from hbeo.model.fit import TrainOptions
     from hbeo.model.loop import load_checkpoint
@@ -129,7 +168,13 @@ def worker(args) -> int:
     print(f"[worker] {state['device']}; profile {run.profile.name}, dataset {run.dataset.name}, run {run.path}"
           + (f"; resuming from step {resumed}" if resumed is not None else ""), flush=True)
     if not run.dir.model.exists():
-        opts = TrainOptions(checkpoint_every=args.checkpoint_every, max_steps=args.max_steps)
+        max_steps = args.max_steps
+        if args.budget:
+            if "budget" not in state:                   # chosen once: a restarted worker keeps the schedule
+                state["budget"] = fit_budget(run, args, t_start)
+                _write_json(state_path, state)
+            max_steps = state["budget"]["max_steps"]
+        opts = TrainOptions(checkpoint_every=args.checkpoint_every, max_steps=max_steps)
         trained = run.train(opts, progress=False)
         state["stages"]["train_s"] = state["stages"].get("train_s", 0.0) + time.perf_counter() - t0
         state["resumed_from_step"] = resumed if state.get("resumed_from_step") is None else state["resumed_from_step"]
@@ -166,6 +211,8 @@ def start_worker(args) -> int:
            "--checkpoint-every", str(args.checkpoint_every)]
     if args.max_steps:
         cmd += ["--max-steps", str(args.max_steps)]
+    if args.budget:
+        cmd += ["--budget", str(args.budget), "--calibrate", str(args.calibrate), "--eval-reserve", str(args.eval_reserve)]
     log = open(Path(args.run) / LOG, "ab")
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -209,10 +256,19 @@ def main(argv=None) -> int:
     p.add_argument("--wait", type=float, default=540, help="seconds to wait for the worker in this call (540)")
     p.add_argument("--checkpoint-every", type=int, default=500, metavar="STEPS")
     p.add_argument("--max-steps", type=int, help="stop training after this many steps (a smoke test)")
+    p.add_argument("--budget", type=float, help="fit the worker's whole job (training and evaluation) into these "
+                   "seconds: the training steps are chosen by timing a short calibration first")
+    p.add_argument("--calibrate", type=int, default=40, metavar="STEPS", help="steps timed for --budget (40)")
+    p.add_argument("--eval-reserve", type=float, default=120, metavar="SECONDS",
+                   help="seconds of --budget kept for the evaluation (120)")
     p.add_argument("--no-round", dest="round_bf16", action="store_false",
                    help="keep the float32 weights unrounded (the paper's network then does not fit the way back)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.budget is not None and not args.budget > 0:
+        p.error(f"--budget must be a positive number of seconds, got {args.budget}")
+    if args.calibrate < 1 or not args.eval_reserve >= 0:
+        p.error("--calibrate must be >= 1 and --eval-reserve >= 0")
     from hbeo.rundir import RunDir
     args.run = Path(args.run) if args.run else RunDir.for_run(args.profile, args.dataset).path
     args.run.mkdir(parents=True, exist_ok=True)

@@ -92,3 +92,18 @@ def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_
     assert r.returncode == 0, r.stderr
     assert (dest / "modelnet10_vox30.npz").read_bytes() == Path(vox30_file).read_bytes()
     assert "to carry" in r.stdout
+
+
+@pytest.mark.slow
+def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_fit(tmp_path):
+    run, out = tmp_path / "run", tmp_path / "out"
+    r = _job(run, out, "--budget", "120", "--calibrate", "3", "--eval-reserve", "20")
+    assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
+    lease = json.loads((out / "lease.json").read_text())
+    b = lease["budget"]
+    assert b["calibration_steps"] == 3 and b["step_s"] > 0 and b["seconds"] == 120
+    assert lease["steps"] == b["max_steps"] >= 3          # the real model trained the chosen steps, schedule ending there
+    assert (run / "calibration.hbeo").exists() and (run / "model.hbeo").exists()
+    assert "budget 120 s" in (run / "job.log").read_text()
+    bad = _job(tmp_path / "run2", tmp_path / "out3", "--budget", "-5")
+    assert bad.returncode == 2 and "--budget" in bad.stderr
