@@ -12,11 +12,12 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    the last checkpoint), then the paired HBEO evaluation on the whole test split
    (:func:`hbeo.evaluation.protocol.evaluation`), then ``lease.json`` (device, wall time per stage,
    images seen, resumed step, the command).
-   With ``--budget SECONDS`` the worker fits the whole job into that wall time: it makes the subspace, times
-   ``--calibrate`` steps of the real training (a throw-away model, ``calibration.hbeo``), and trains the real
+   With ``--budget SECONDS`` the worker fits the whole job into that wall time: it makes the subspace, warms up,
+   times ``--calibrate`` steps of the real training (a throw-away model, ``calibration.hbeo``), and trains the real
    model for the number of steps that fit (the schedule ends there, as with ``--max-steps``), keeping
    ``--eval-reserve`` seconds for the evaluation; ``lease.json`` says what was measured, the steps planned
-   by the profile and the steps trained. A restarted worker keeps the step count it chose first.
+   by the profile and the steps trained. A restarted worker keeps the step count it chose first. The
+   evaluation runs HBEO's network on the GPU (``cuda`` when there is one; the metrics' ``device`` says so).
 2. It waits for the worker until it finishes or ``--wait`` runs out (then it says so: call again, on the
    same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
@@ -51,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 
 PART_BYTES = 15 * 2**20          # one file back from the device: at most 16 MiB
 MAX_PARTS = 3                    # beside 5 other files: 8 files and under 64 MiB in all
+WARMUP_STEPS = 5                 # --budget: untimed training steps before the timed calibration
 STATE = "job_state.json"         # the worker's stages, written atomically by the worker
 LOG = "job.log"
 
@@ -117,8 +119,9 @@ def round_weights_bf16(path: Path) -> None:
 
 def fit_budget(run, args, t_start: float) -> dict:
     """How many training steps fit ``args.budget`` seconds of this worker (counted from ``t_start``): the
-    subspace first (the real run reuses it), then ``args.calibrate`` steps of the real training into a
-    throw-away model; from the calibration's wall time and its in-loop images/s, the fixed cost of a
+    subspace first (the real run reuses it), then :data:`WARMUP_STEPS` steps of the real training into a
+    throw-away model, to warm this process up (on an H200 the first 40 steps ran at a quarter of the speed
+    of the rest: lease of 2026-11-26), then ``args.calibrate`` steps into another; from the calibration's wall time and its in-loop images/s, the fixed cost of a
     training (data on the device, validation, saving) and the time per step. The steps are those left
     once the fixed cost, ``args.eval_reserve`` seconds for the evaluation and a 5 % margin are set aside
     (at least ``args.calibrate``: a budget too small still trains a little, and says so)."""
@@ -127,6 +130,9 @@ def fit_budget(run, args, t_start: float) -> dict:
     t = time.perf_counter()
     run.subspace(progress=False)
     subspace_s = time.perf_counter() - t
+    t = time.perf_counter()                  # warm-up first (CUDA context, cuDNN's autotuning, the caster's first
+    run.train(TrainOptions(name="calibration-warmup.hbeo", max_steps=WARMUP_STEPS), progress=False)   # batches)
+    warmup_s = time.perf_counter() - t       # in this process: the real training after it is warm too
     t = time.perf_counter()
     cal = run.train(TrainOptions(name="calibration.hbeo", max_steps=args.calibrate), progress=False)
     calibration_s = time.perf_counter() - t
@@ -137,7 +143,8 @@ def fit_budget(run, args, t_start: float) -> dict:
     fixed_s = max(calibration_s - loop_s, 0.0)
     left = args.budget - (time.perf_counter() - t_start) - args.eval_reserve - fixed_s
     steps = int(0.95 * left / step_s)
-    out = {"seconds": args.budget, "subspace_s": round(subspace_s, 1), "calibration_steps": int(row["step"]),
+    out = {"seconds": args.budget, "subspace_s": round(subspace_s, 1), "warmup_steps": WARMUP_STEPS,
+           "warmup_s": round(warmup_s, 1), "calibration_steps": int(row["step"]),
            "calibration_s": round(calibration_s, 1), "step_s": round(step_s, 4), "fixed_s": round(fixed_s, 1),
            "calibration_images_per_s": round(row["images_per_s"], 1), "eval_reserve_s": args.eval_reserve,
            "max_steps": max(steps, args.calibrate), "too_small": steps < args.calibrate}
@@ -189,7 +196,9 @@ def worker(args) -> int:
         _write_json(state_path, state)
     t1 = time.perf_counter()
     print(f"[worker] trained: {run.dir.model}; evaluating on the test split", flush=True)
-    metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False)
+    import torch
+    metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False,
+                                  device="cuda" if torch.cuda.is_available() else None)
     state["stages"]["evaluate_s"] = time.perf_counter() - t1
     ck = load_checkpoint(ckpt) if ckpt.exists() else {}
     prof = run.profile

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Make what the device job needs to travel to a lent GPU machine, in .device/ (ignored by git, named in
 # the device tool's `carry`): the 30^3 grid file and wheels of what the device image lacks (its Python is
-# 3.12 with numpy 2 and torch 2.11 + CUDA; trimesh, embreex and pooch are not there). Then, on the device:
+# 3.12 with numpy 2 and torch 2.11 + CUDA; trimesh and pooch are not there, nor embreex: EMBREE=1 adds it). Then, on the device:
 #     bash scripts/device_job.sh            (see scripts/device_job.py; README "Paper scale on one GPU")
 # Usage: bash scripts/device_prepare.sh [DEST]       (DEST default .device; WHEELS=0 skips the downloads)
 set -euo pipefail
@@ -15,7 +15,9 @@ echo "grids: $GRID -> $DEST/modelnet10_vox30.npz"
 if [ "${WHEELS:-1}" != "0" ]; then
   # pure-Python or cp312 manylinux wheels, pinned to requirements.txt's versions where the lock has them
   pin() { grep -E "^$1==" requirements.txt | head -1 || echo "$1"; }
-  for pkg in trimesh pooch embreex; do
+  # embreex (14.6 MB) only with EMBREE=1: the grid dataset renders with torch there, and with the committed
+  # results the tree would pass the device tool's 64 MiB
+  for pkg in trimesh pooch $([ "${EMBREE:-0}" = "1" ] && echo embreex); do
     spec=$(pin "$pkg")
     $PY -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \

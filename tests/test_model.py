@@ -165,3 +165,17 @@ def test_roll_averaging_turns_each_rolls_distribution_back(model):
         model.predict(d, K, rolls=2)
     with pytest.raises(ValueError, match="positive integer"):
         m.predict(d, K, rolls=0)
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs a CUDA GPU"))])
+def test_to_a_device_gives_the_same_answers(model, device):
+    m, K = _bins_model(model), model.intrinsics
+    d = np.zeros((K.height, K.width))
+    d[8:16, 6:26] = 1.7
+    before = m.predict(d, K, rolls=3)
+    assert m.to(device) is m and m.device.type == device and next(m.net.parameters()).device.type == device
+    after = m.predict(d, K, rolls=3)
+    assert np.allclose(before.probabilities, after.probabilities, atol=1e-5)
+    assert np.allclose(before.rotation, after.rotation, atol=1e-4) and np.array_equal(before.grids, after.grids)
+    m.to("cpu")

@@ -33,6 +33,8 @@ or predicted, ``{file, reason, step, object, split}``: left out, the others stil
                                      has no class means
 ``runtime_ms``                       ``mean_per_query``, ``median_per_query`` (preprocessing + network +
                                      back-projection, one view per call, after one warm-up call)
+``device``                           the network's device, only when HBEO ran on another than the CPU
+                                     (:meth:`hbeo.model.inference.HBEO.to`; ``runtime_ms`` is then that device's)
 ``per_class``                        {class: {``n``, ``accuracy``, ``pose_mean_deg``,
                                      ``pose_median_deg``, ``pose_median_sym_deg``, ``pose_within_30``, ``edt``,
                                      ``naive``, ``iou``}}
@@ -102,11 +104,15 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     :func:`evaluate_method`, which needs no HBEO model."""
     if verify is not None and method is not None:
         raise ValueError("verify applies to HBEO itself, not to a baseline")
-    if method is None:
+    own = method is None
+    if own:
         method = HBEOMethod(model, rolls=rolls, verify=verify)
-    return evaluate_method(method, dataset, EvaluationSetup.of_model(model), split=split, views=views, seed=seed,
-                           sampler=sampler, noise=noise, per_class=per_class, progress=progress, chunk=chunk,
-                           pose=pose)
+    m = evaluate_method(method, dataset, EvaluationSetup.of_model(model), split=split, views=views, seed=seed,
+                        sampler=sampler, noise=noise, per_class=per_class, progress=progress, chunk=chunk, pose=pose)
+    device = getattr(model, "device", None)
+    if own and device is not None and device.type != "cpu":      # runtimes are then that device's
+        m["device"] = str(device)
+    return m
 
 
 def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1,

@@ -117,7 +117,7 @@ def training_sampler(model) -> str:
 
 
 def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: bool = True,
-               sampler: str | None = None) -> dict:
+               sampler: str | None = None, device: str | None = None) -> dict:
     """Metrics of ``method``/``pose`` on the run's paired test views (:func:`eval_plan`,
     :func:`hbeo.evaluation.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
     when that file answers the same :func:`request`, else computed and written there (atomically).
@@ -127,7 +127,8 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
     ``sampler``: the reading of the view protocol (:data:`hbeo.render.poses.SAMPLERS`); None or the
     model's own training sampler (:func:`training_sampler`): the file above; another one: the views
     drawn by that sampler from the same per-view streams, in ``eval_<method>_<pose>_<sampler>.json``
-    (:meth:`hbeo.rundir.RunDir.evaluation`)."""
+    (:meth:`hbeo.rundir.RunDir.evaluation`). ``device``: where HBEO's network runs when computed (None: the
+    CPU; :meth:`hbeo.model.inference.HBEO.to`; the device job's ``cuda``)."""
     from hbeo.baselines.methods import check_method
     from hbeo.evaluation.evaluate import evaluate_model
     verified = method == VERIFIED
@@ -148,6 +149,8 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
         except (OSError, ValueError):
             pass
     model = model or run.model(progress=progress)
+    if device is not None:
+        model.to(device)
     meth = None if method in ("hbeo", VERIFIED) else run.baseline(method, progress=progress)
     verify, rolls = None, 1
     if verified:

@@ -125,6 +125,7 @@ class HBEO:
             raise ValueError(f"settings: class_counts has {len(self.settings.class_counts)} entries for "
                              f"{len(self.classes)} classes")
         self._roll_perms: dict = {}
+        self.device = torch.device("cpu")
         self.set_precision(precision)
         self.set_prior_tau(prior_tau)
 
@@ -194,6 +195,17 @@ class HBEO:
                     m.to(PRECISIONS[precision])
         return self
 
+    def to(self, device) -> "HBEO":
+        """Run the network on ``device`` (``"cpu"``, ``"cuda"``, a torch.device); returns self. Inputs are
+        prepared and outputs decoded as before (numpy on the CPU); only the network and the pose decoding
+        run there. A file is always read onto the CPU (:meth:`load`)."""
+        self.device = torch.device(device)
+        self.net.to(self.device)
+        if self._net is not self.net:
+            self._net.to(self.device)
+        self._roll_perms.clear()
+        return self
+
     # ------------------------------------------------------------ persistence
     def save(self, path) -> Path:
         """Write the model to one file, atomically (:mod:`hbeo.model.modelfile`; float32 weights
@@ -259,9 +271,12 @@ class HBEO:
             part = angles[r0:r0 + step]
             x = np.concatenate([x0 if r0 + k == 0 else np.stack([roll_depth(d, self.intrinsics, a) for d in x0])
                                 for k, a in enumerate(part)])
-            x = torch.from_numpy(x[:, None]).to(PRECISIONS[self.precision]).contiguous(memory_format=torch.channels_last)
+            x = torch.from_numpy(x[:, None]).to(self.device, PRECISIONS[self.precision]).contiguous(
+                memory_format=torch.channels_last)
             tn = time.perf_counter()
             out = {k: v.float().view(len(part), len(views), -1) for k, v in self._net(x).items()}
+            if self.device.type == "cuda":
+                torch.cuda.synchronize(self.device)
             net_s += time.perf_counter() - tn
             prob_sum = prob_sum + torch.softmax(out["logits"], dim=2).sum(0)
             coeff_sum = coeff_sum + out["coeffs"].sum(0)
@@ -271,20 +286,20 @@ class HBEO:
                 p = torch.softmax(out["pose"].double(), dim=2)
                 P = P + sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(part))
         t2 = time.perf_counter()
-        probs = self.adjust_probabilities((prob_sum / rolls).numpy())
+        probs = self.adjust_probabilities((prob_sum / rolls).cpu().numpy())
         pose_probs = None
         if rolls == 1:
-            R_virtual = self.net.pose_matrix(pose0.double()).numpy()
+            R_virtual = self.net.pose_matrix(pose0.double()).cpu().numpy()
             if self.net.cfg.rotation == "bins":
-                pose_probs = torch.softmax(pose0.double(), dim=1).numpy()
+                pose_probs = torch.softmax(pose0.double(), dim=1).cpu().numpy()
         else:
             P = P / rolls
-            R_virtual = self.net.pose_matrix(torch.log(P.clamp_min(1e-300))).numpy()
-            pose_probs = P.numpy()
+            R_virtual = self.net.pose_matrix(torch.log(P.clamp_min(1e-300))).cpu().numpy()
+            pose_probs = P.cpu().numpy()
         out = {"coeffs": coeff_sum / rolls}
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
-        coeffs = out["coeffs"].numpy().astype(np.float64)
+        coeffs = out["coeffs"].cpu().numpy().astype(np.float64)
         if s.coeff_std is not None:
             coeffs = coeffs * np.asarray(s.coeff_std) + np.asarray(s.coeff_mean)
         grids = self.subspace.reconstruct(coeffs.astype(np.float32), threshold=0.5)
@@ -332,7 +347,7 @@ class HBEO:
             if len(cache) >= 4 * MAX_ROLLS:             # bounded: rolls of many different counts
                 cache.clear()
             G = self.net.bin_rotations.float()
-            RG = torch.from_numpy(z_angle_to_matrix(angle)).float() @ G
+            RG = torch.from_numpy(z_angle_to_matrix(angle)).float().to(G.device) @ G
             cache[key] = torch.cat([bin_cosines(RG[i:i + 512], G).argmax(1) for i in range(0, len(G), 512)])
         return cache[key]
 
