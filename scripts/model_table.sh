@@ -16,6 +16,14 @@ for v in coeffs voxels; do
   $PY -m hbeo evaluate --model $R/model_abl5_$v.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
       --out $H/eval_val-abl5-$v.json
 done
+# 1b. class balance (issue 29): balanced sampling against a class-weighted loss, 5 epochs each as in 1 (the voxel
+#     loss chosen there), compared with 1's voxel row on validation class-mean accuracy; ablation rows only
+for b in sampler loss; do
+  $PY -m hbeo train --dataset $D --profile cpu --rotation bins --augment-roll --shape-loss voxels --epochs 5 \
+      --class-balance $b --name model_abl5_bal-$b.hbeo --quiet
+  $PY -m hbeo evaluate --model $R/model_abl5_bal-$b.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
+      --out $H/eval_val-abl5-bal-$b.json
+done
 # 2. the reference model (voxel loss chosen), 30 epochs (the epoch count chosen on validation earlier)
 $PY -m hbeo train --dataset $D --profile cpu --rotation bins --augment-roll --shape-loss voxels --epochs 30 \
     --checkpoint-every 500 --quiet
@@ -37,8 +45,14 @@ for s in 0 1; do
 done
 $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
     --out $R/eval_test-ref-rolls4.json
-$PY -m hbeo evaluate --model $R/model.hbeo --method beo --pose known --dataset $D --split test --views 3 --seed 0 \
-    --quiet --out $R/eval_test-beo-known.json
+# BEO with known pose on the same test views (the targets' reference): the reference run's eval_beo_known.json
+# 4b. the prior correction of the class answer: tau chosen on validation (benchmarks/logs/prior.json), then the
+#     chosen tau on validation and once on the test split
+$PY benchmarks/bench_prior.py --model $R/model.hbeo --split val
+for split in val test; do
+  $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split $split --views 3 --seed 0 --prior-tau 1 --quiet \
+      --out $R/eval_$split-ref-prior1.json
+done
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'
