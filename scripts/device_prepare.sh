@@ -4,6 +4,7 @@
 # 3.12 with numpy 2 and torch 2.11 + CUDA; trimesh and pooch are not there, nor embreex: EMBREE=1 adds it). Then, on the device:
 #     bash scripts/device_job.sh            (see scripts/device_job.py; README "Paper scale on one GPU")
 # Usage: bash scripts/device_prepare.sh [DEST]       (DEST default .device; WHEELS=0 skips the downloads)
+# Exit 3 when the working tree and DEST together pass the device tool's 64 MiB (the largest files listed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEST=${1:-.device}
@@ -24,4 +25,18 @@ if [ "${WHEELS:-1}" != "0" ]; then
       --platform any -d "$DEST/whl" "$spec"
   done
 fi
-du -sh "$DEST" | awk '{print "to carry: " $2 " (" $1 "; the device tool carries 64 MiB at most)"}'
+# what travels: tracked files, untracked ones git does not ignore, and DEST; the device tool takes 64 MiB at most
+if git rev-parse --git-dir > /dev/null 2>&1; then
+  tree=$( { git ls-files -z; git ls-files -z -o --exclude-standard; } | du -cb --files0-from=- 2>/dev/null | tail -1 | cut -f1)
+  dest=$(du -sb "$DEST" | cut -f1)
+  total=$((tree + dest))
+  echo "to travel: $((total / 1048576)) MiB (working tree $((tree / 1048576)) MiB + $DEST $((dest / 1048576)) MiB; limit 64 MiB)"
+  if [ "$total" -gt $((64 * 1048576)) ]; then
+    echo "over the device tool's 64 MiB: run 'bash scripts/device_tree.sh slim' (the committed model files stay" \
+         "behind; 'restore' after the call). The largest files that travel:" >&2
+    { git ls-files -z; git ls-files -z -o --exclude-standard; } | du -b --files0-from=- 2>/dev/null | sort -rn | head -5 >&2
+    exit 3
+  fi
+else
+  du -sh "$DEST" | awk '{print "to carry: " $2 " (" $1 "; the device tool carries 64 MiB at most)"}'
+fi
