@@ -15,8 +15,8 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    With ``--budget SECONDS`` the worker fits the whole job into that wall time: it makes the subspace, warms up,
    times ``--calibrate`` steps of the real training (a throw-away model, ``calibration.hbeo``), and trains the real
    model for the number of steps that fit (the schedule ends there, as with ``--max-steps``), keeping
-   ``--eval-reserve`` seconds for the evaluation; ``lease.json`` says what was measured, the steps planned
-   by the profile and the steps trained. A restarted worker keeps the step count it chose first. The
+   ``--eval-reserve`` seconds for the evaluation; ``lease.json``'s ``budget`` says what was measured and the
+   steps chosen (its ``steps``: those trained, fewer when the profile plans fewer). A restarted worker keeps the step count it chose first. The
    evaluation runs HBEO's network on the GPU (``cuda`` when there is one; the metrics' ``device`` says so).
 2. It waits for the worker until it finishes or ``--wait`` runs out (then it says so: call again, on the
    same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
@@ -121,8 +121,9 @@ def fit_budget(run, args, t_start: float) -> dict:
     """How many training steps fit ``args.budget`` seconds of this worker (counted from ``t_start``): the
     subspace first (the real run reuses it), then :data:`WARMUP_STEPS` steps of the real training into a
     throw-away model, to warm this process up (on an H200 the first 40 steps ran at a quarter of the speed
-    of the rest: lease of 2026-11-26), then ``args.calibrate`` steps into another; from the calibration's wall time and its in-loop images/s, the fixed cost of a
-    training (data on the device, validation, saving) and the time per step. The steps are those left
+    of the rest: lease of 2026-11-26), then ``args.calibrate`` steps into another; from the calibration's
+    wall time and its in-loop images/s, the fixed cost of a training (data on the device, validation,
+    saving) and the time per step. The steps are those left
     once the fixed cost, ``args.eval_reserve`` seconds for the evaluation and a 5 % margin are set aside
     (at least ``args.calibrate``: a budget too small still trains a little, and says so)."""
     from hbeo.model.fit import TrainOptions
