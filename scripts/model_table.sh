@@ -30,6 +30,14 @@ $PY -m hbeo train --dataset $D --profile cpu --rotation bins --augment-roll --sh
 $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --quiet --out $R/eval_val-ref.json
 $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
     --out $R/eval_val-ref-rolls4.json
+# 2b. (issue 29) the recipe with class-balanced sampling, chosen in 1b, 30 epochs; validation one pass and 4 rolls
+#     (its test files only where validation chooses it over the reference rows)
+$PY -m hbeo train --dataset $D --profile cpu --class-balance sampler --name model_bal-sampler.hbeo \
+    --checkpoint-every 500 --quiet
+$PY -m hbeo evaluate --model $R/model_bal-sampler.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
+    --out $R/eval_val-bal-sampler.json
+$PY -m hbeo evaluate --model $R/model_bal-sampler.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
+    --out $R/eval_val-bal-sampler-rolls4.json
 # 3. verify settings, on validation views only (rows appended to verify_sweep.csv)
 $PY scripts/tune_verify.py --model $R/model.hbeo --per-class 40 --thresholds 0.3,0.45 hbeo default \
     "classes=1,class_weight=0" "classes=1,class_weight=0,rotations=2" "classes=1,class_weight=0,noise_var=0.3"
