@@ -150,3 +150,29 @@ def test_bad_input_gets_a_clear_value_error():
         caster.render([1], np.eye(3)[None], t)
     with pytest.raises(ValueError, match="beyond z"):
         caster.render([0], np.eye(3)[None], np.array([[0, 0, 0.3]]))
+
+
+def test_grids_smoothed_in_worker_processes_give_the_same_caster():
+    grids = [_l_shape(), _l_shape()[::-1].copy(), np.ascontiguousarray(_l_shape().transpose(2, 0, 1))]
+    one, two = GridCaster(grids, SQUARE, workers=1), GridCaster(grids, SQUARE, workers=2)
+    assert torch.equal(one._field, two._field) and torch.equal(one._safe, two._safe)
+    assert torch.equal(one._inv_slope, two._inv_slope) and torch.equal(one._lo, two._lo)
+    R, t = np.stack([np.eye(3)] * 3), np.array([[0, 0, 2.0]] * 3)
+    assert torch.equal(one.render([0, 1, 2], R, t), two.render([0, 1, 2], R, t))
+    # an error in a worker names the grid, as in one process
+    with pytest.raises(ValueError, match="grid 2: .*empty"):
+        GridCaster(grids[:2] + [np.zeros((30, 30, 30), bool)], SQUARE, workers=2)
+
+
+def test_shared_caster_is_built_once_per_grids_camera_and_device():
+    from hbeo.render import torch_datasets as td
+    from hbeo.render.views import RenderSettings
+    s = RenderSettings(image_size=(64, 48))
+    grids = [_l_shape(), _l_shape()[::-1].copy()]
+    td._CASTERS.clear()
+    a = td.shared_caster(grids, s, "cpu")
+    assert td.shared_caster([g.copy() for g in grids], s, "cpu") is a          # same content: the same caster
+    assert td.shared_caster(grids[::-1], s, "cpu") is not a                     # other grids (order counts)
+    assert td.shared_caster(grids, RenderSettings(image_size=(80, 60)), "cpu") is not a     # another camera
+    assert len(td._CASTERS) == td.SHARED_CASTERS and td.shared_caster(grids, s, "cpu") is not a   # a evicted
+    td._CASTERS.clear()

@@ -177,6 +177,14 @@ def test_torch_stream_batches_are_the_images_rendered_one_by_one(torch_stream):
         one = base[i]                          # ObjectViews, the torch backend on one object: the same image
         torch.testing.assert_close(batch["depth"][k], one["depth"], atol=1e-3, rtol=0)
         assert torch.equal(batch["rotation"][k], one["rotation"]) and torch.equal(batch["coeffs"][k], one["coeffs"])
+    # the coefficients, projected for all objects at once (FreshPoses._prefill_coeffs), are each object's own
+    from hbeo.data.gridset import record_grid
+    b = base.base
+    assert b.subspace is not None and base._ctx.prefilled
+    for k, i in enumerate(idx):
+        rec = b.records[i % len(b)]
+        np.testing.assert_allclose(batch["coeffs"][k].numpy(), b.subspace.project(record_grid(rec)[None])[0],
+                                   rtol=1e-5, atol=1e-4)
     # a model batch: the memory source's keys, shapes and dtypes
     items = d.train.__getitems__(idx)
     assert _spec(items[0]) == _spec(d.train[idx[0]])

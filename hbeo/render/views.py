@@ -220,6 +220,7 @@ class ObjectViews:
         self.renderer = None
         self._caster = None                     # backend "torch": (object key, GridCaster) of the last object
         self._coeffs: dict[tuple, np.ndarray] = {}
+        self.prefilled = False                  #: :meth:`prefill_coeffs` has run
 
     @property
     def backend(self) -> str:
@@ -243,6 +244,18 @@ class ObjectViews:
             from hbeo.data.gridset import record_grid       # raises DataError naming the object
             self._coeffs[key] = np.asarray(self.subspace.project(record_grid(record)[None])[0], np.float32)
         return self._coeffs[key]
+
+    def prefill_coeffs(self, records, block: int = 256) -> None:
+        """:meth:`coeffs` of every record not yet cached, projected ``block`` objects at a time (one
+        matrix product each, where :meth:`coeffs` reads the whole basis for one object)."""
+        from hbeo.data.gridset import record_grid
+        todo = [r for r in records if (r.split, r.cls, r.id) not in self._coeffs]
+        for i in range(0, len(todo), block):
+            part = todo[i:i + block]
+            C = np.asarray(self.subspace.project(np.stack([record_grid(r) for r in part])), np.float32)
+            for r, c in zip(part, C):
+                self._coeffs[(r.split, r.cls, r.id)] = c
+        self.prefilled = True
 
     def views(self, record, position: int, label: int, split: str, epoch: int = 0) -> dict:
         """The arrays of all views of one object (shard layout, mask still unpacked)."""
