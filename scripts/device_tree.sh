@@ -2,14 +2,17 @@
 # Keep the committed model files from travelling to a lent GPU machine, whose tool sends the whole working tree
 # (tracked files and untracked ones git does not ignore) and refuses more than 64 MiB; the reference runs' model
 # files (results/*/model.hbeo) are most of the tree, and the device job needs none of them.
-#     bash scripts/device_tree.sh slim       before the device call: untrack them in the index and ignore them in
-#                                            .git/info/exclude (the files stay on disk, nothing is committed)
-#     bash scripts/device_tree.sh restore    after it: track them again, drop the exclude lines
+#     bash scripts/device_tree.sh slim       before the device call: untrack them in the index, move them into
+#                                            .device-aside/ (ignored in .git/info/exclude; a file that .gitignore
+#                                            un-ignores, as results/cpu-procedural/model.hbeo, would travel if only
+#                                            excluded there), nothing is committed
+#     bash scripts/device_tree.sh restore    after it: move them back, track them again, drop the exclude lines
 # `slim` refuses a tree with staged changes (restore would mix them up); commit first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 MARK="# hbeo device_tree.sh slim"
 EXCLUDE=$(git rev-parse --git-path info/exclude)
+ASIDE=.device-aside
 case "${1:-}" in
   slim)
     if ! git diff --cached --quiet; then
@@ -22,14 +25,23 @@ case "${1:-}" in
     [ ${#files[@]} -gt 0 ] || { echo "nothing to leave behind"; exit 0; }
     git rm -q --cached -- "${files[@]}"
     mkdir -p "$(dirname "$EXCLUDE")"
-    for f in "${files[@]}"; do printf '%s: /%s\n/%s\n' "$MARK" "$f" "$f" >> "$EXCLUDE"; done
-    echo "left behind (still on disk): ${files[*]}"
+    printf '%s\n/%s/\n' "$MARK" "$ASIDE" >> "$EXCLUDE"
+    for f in "${files[@]}"; do
+      printf '%s: /%s\n/%s\n' "$MARK" "$f" "$f" >> "$EXCLUDE"
+      mkdir -p "$ASIDE/$(dirname "$f")" && mv "$f" "$ASIDE/$f"
+    done
+    echo "left behind (in $ASIDE/ until restore): ${files[*]}"
     ;;
   restore)
     mapfile -t files < <(grep -F "$MARK: /" "$EXCLUDE" 2>/dev/null | sed "s|^$MARK: /||")
     [ ${#files[@]} -gt 0 ] || { echo "not slim: nothing to restore"; exit 0; }
+    for f in "${files[@]}"; do
+      if [ -e "$ASIDE/$f" ]; then mkdir -p "$(dirname "$f")" && mv "$ASIDE/$f" "$f"; fi
+    done
+    find "$ASIDE" -depth -type d -empty -delete 2>/dev/null || true
     tmp=$(mktemp)
     grep -vF "$MARK" "$EXCLUDE" > "$tmp" || true
+    grep -vxF "/$ASIDE/" "$tmp" > "$tmp.2" || true; mv "$tmp.2" "$tmp"
     for f in "${files[@]}"; do grep -vxF "/$f" "$tmp" > "$tmp.2" || true; mv "$tmp.2" "$tmp"; done
     cat "$tmp" > "$EXCLUDE" && rm -f "$tmp"
     git reset -q -- "${files[@]}"

@@ -114,9 +114,11 @@ def test_device_tree_slim_leaves_the_model_files_behind_and_restore_tracks_them_
     repo = tmp_path / "repo"
     (repo / "scripts").mkdir(parents=True)
     shutil.copy(ROOT / "scripts" / "device_tree.sh", repo / "scripts")
-    for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "hbeo/x.py"):
+    # results/b/model.hbeo un-ignored by .gitignore, as results/cpu-procedural/model.hbeo: an exclude line alone
+    # would not keep it from travelling
+    for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "hbeo/x.py", ".gitignore"):
         (repo / f).parent.mkdir(parents=True, exist_ok=True)
-        (repo / f).write_text(f)
+        (repo / f).write_text("results/b/*.hbeo\n!results/b/model.hbeo\n" if f == ".gitignore" else f)
     git = lambda *a: subprocess.run(["git", "-C", str(repo), *a], capture_output=True, text=True, check=True).stdout
     git("init", "-q")
     git("-c", "user.name=t", "-c", "user.email=t@t", "add", ".")
@@ -126,10 +128,11 @@ def test_device_tree_slim_leaves_the_model_files_behind_and_restore_tracks_them_
     before = travels()
     assert run("slim").returncode == 0
     assert travels() == before - {"results/a/model.hbeo", "results/b/model.hbeo"}
-    assert (repo / "results/a/model.hbeo").exists()                 # still on disk
+    assert (repo / ".device-aside/results/a/model.hbeo").read_text() == "results/a/model.hbeo"   # kept aside
     assert run("slim").returncode == 2                              # twice: refused
     assert run("restore").returncode == 0
-    assert travels() == before and git("status", "--porcelain") == ""
+    assert travels() == before and git("status", "--porcelain") == "" and not (repo / ".device-aside").exists()
+    assert (repo / "results/b/model.hbeo").read_text() == "results/b/model.hbeo"
     assert "model.hbeo" not in (repo / ".git/info/exclude").read_text()
     git("rm", "-q", "--cached", "hbeo/x.py")                        # staged changes: slim refuses
     assert run("slim").returncode == 2
