@@ -2,7 +2,13 @@
 leave what must come back under a lent GPU machine's transfer limits.
 
     python scripts/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
-                                 [--out DIR] [--wait SECONDS] [--budget SECONDS]
+                                 [--out DIR] [--wait SECONDS] [--budget SECONDS] [--split test|val]
+                                 [--data stream] [--backend torch] [--class-balance sampler] [--epochs N] [--seed S]
+
+The training flags override the profile's recipe as ``python -m hbeo train``'s do (e.g. the ``cpu`` profile's
+recipe with fresh views rendered on the GPU: ``--profile cpu --data stream --backend torch``); ``--split val``
+evaluates on the validation objects instead of the test split, for choosing between recipes
+(``eval_val_hbeo_3dof.json``). ``lease.json`` records both (``train_options``, ``split``).
 
 One call does what is left, never more than ``--wait`` seconds in the foreground:
 
@@ -117,6 +123,19 @@ def round_weights_bf16(path: Path) -> None:
     model.save(path)
 
 
+#: ``python -m hbeo train`` options the device job passes on (TrainOptions' names; None: the profile's)
+TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed")
+VAL_EVAL = "eval_val_hbeo_3dof.json"     # --split val: the validation objects' metrics (the run's own test file
+                                         # keeps its name, eval_hbeo_3dof.json)
+
+
+def train_options(args, **kw):
+    """The worker's TrainOptions: the job's training flags (:data:`TRAIN_FLAGS`) and ``kw``."""
+    from hbeo.model.fit import TrainOptions
+    given = {k: getattr(args, k) for k in TRAIN_FLAGS if getattr(args, k, None) is not None}
+    return TrainOptions(**given, **kw)
+
+
 def fit_budget(run, args, t_start: float) -> dict:
     """How many training steps fit ``args.budget`` seconds of this worker (counted from ``t_start``): the
     subspace first (the real run reuses it), then :data:`WARMUP_STEPS` steps of the real training into a
@@ -126,16 +145,15 @@ def fit_budget(run, args, t_start: float) -> dict:
     saving) and the time per step. The steps are those left
     once the fixed cost, ``args.eval_reserve`` seconds for the evaluation and a 5 % margin are set aside
     (at least ``args.calibrate``: a budget too small still trains a little, and says so)."""
-    from hbeo.model.fit import TrainOptions
     from hbeo.model.loop import training_history
     t = time.perf_counter()
     run.subspace(progress=False)
     subspace_s = time.perf_counter() - t
     t = time.perf_counter()                  # warm-up first (CUDA context, cuDNN's autotuning, the caster's first
-    run.train(TrainOptions(name="calibration-warmup.hbeo", max_steps=WARMUP_STEPS), progress=False)   # batches)
+    run.train(train_options(args, name="calibration-warmup.hbeo", max_steps=WARMUP_STEPS), progress=False)  # batches)
     warmup_s = time.perf_counter() - t       # in this process: the real training after it is warm too
     t = time.perf_counter()
-    cal = run.train(TrainOptions(name="calibration.hbeo", max_steps=args.calibrate), progress=False)
+    cal = run.train(train_options(args, name="calibration.hbeo", max_steps=args.calibrate), progress=False)
     calibration_s = time.perf_counter() - t
     row = training_history(run.dir.training(cal.path))[-1]
     batch = run.profile.recipe.batch_size
@@ -160,7 +178,6 @@ def worker(args) -> int:
     """The background process: train (resuming from the checkpoint), evaluate, write lease.json."""
     t_start = time.perf_counter()
     from hbeo.evaluation import protocol
-    from hbeo.model.fit import TrainOptions
     from hbeo.model.loop import load_checkpoint
     from hbeo.storage import sha256_file
     from hbeo.run import Run
@@ -182,7 +199,7 @@ def worker(args) -> int:
                 state["budget"] = fit_budget(run, args, t_start)
                 _write_json(state_path, state)
             max_steps = state["budget"]["max_steps"]
-        opts = TrainOptions(checkpoint_every=args.checkpoint_every, max_steps=max_steps)
+        opts = train_options(args, checkpoint_every=args.checkpoint_every, max_steps=max_steps)
         trained = run.train(opts, progress=False)
         state["stages"]["train_s"] = state["stages"].get("train_s", 0.0) + time.perf_counter() - t0
         state["resumed_from_step"] = resumed if state.get("resumed_from_step") is None else state["resumed_from_step"]
@@ -196,15 +213,26 @@ def worker(args) -> int:
         state["weights_rounded_to"] = "bfloat16"
         _write_json(state_path, state)
     t1 = time.perf_counter()
-    print(f"[worker] trained: {run.dir.model}; evaluating on the test split", flush=True)
+    print(f"[worker] trained: {run.dir.model}; evaluating on the {args.split} split", flush=True)
     import torch
-    metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False,
-                                  device="cuda" if torch.cuda.is_available() else None)
+    device = "cuda" if torch.cuda.is_available() else None
+    if args.split == "val":          # choosing between recipes: the validation objects, never the test split
+        from hbeo.evaluation.evaluate import evaluate_model
+        from hbeo.storage import atomic_text, json_text
+        model = run.model(progress=False)
+        if device:
+            model.to(device)
+        metrics = evaluate_model(model, run.dataset, split="val", views=run.profile.evaluation.eval_views,
+                                 seed=protocol.SEED, progress=False)
+        atomic_text(run.path / VAL_EVAL, json_text(metrics, indent=1))
+    else:
+        metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False, device=device)
     state["stages"]["evaluate_s"] = time.perf_counter() - t1
     ck = load_checkpoint(ckpt) if ckpt.exists() else {}
     prof = run.profile
     steps = int(ck.get("step", 0))
-    state.update(status="done", profile=prof.name, dataset=run.dataset.name, steps=steps,
+    state.update(status="done", profile=prof.name, dataset=run.dataset.name, steps=steps, split=args.split,
+                 train_options={k: getattr(args, k) for k in TRAIN_FLAGS if getattr(args, k) is not None},
                  batch_size=prof.recipe.batch_size, images_seen=steps * prof.recipe.batch_size,
                  image_size=list(prof.data.image_size), train_data=prof.data.train_data,
                  provenance=_read_json(prov),
@@ -223,6 +251,10 @@ def start_worker(args) -> int:
         cmd += ["--max-steps", str(args.max_steps)]
     if args.budget:
         cmd += ["--budget", str(args.budget), "--calibrate", str(args.calibrate), "--eval-reserve", str(args.eval_reserve)]
+    for k in TRAIN_FLAGS:
+        if getattr(args, k) is not None:
+            cmd += ["--" + k.replace("_", "-"), str(getattr(args, k))]
+    cmd += ["--split", args.split]
     log = open(Path(args.run) / LOG, "ab")
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -250,7 +282,8 @@ def pack(run_dir: Path, out: Path, state: dict) -> list[Path]:
             written.append(p)
     _write_json(out / "lease.json", state)
     written.append(out / "lease.json")
-    for src in (rd.evaluation("hbeo", "3dof"), rd.train_log(model), rd.training_provenance(model), run_dir / LOG):
+    for src in (rd.evaluation("hbeo", "3dof"), run_dir / VAL_EVAL, rd.train_log(model), rd.training_provenance(model),
+                run_dir / LOG):
         if src.exists():
             shutil.copyfile(src, out / src.name)
             written.append(out / src.name)
@@ -273,12 +306,23 @@ def main(argv=None) -> int:
                    help="seconds of --budget kept for the evaluation (120)")
     p.add_argument("--no-round", dest="round_bf16", action="store_false",
                    help="keep the float32 weights unrounded (the paper's network then does not fit the way back)")
+    p.add_argument("--split", choices=("test", "val"), default="test",
+                   help="where the trained model is evaluated: the test split (the run's eval_hbeo_3dof.json) or, "
+                        f"to choose between recipes, the validation objects ({VAL_EVAL})")
+    g = p.add_argument_group("training (python -m hbeo train's options; default: the profile's)")
+    g.add_argument("--data", choices=("memory", "shards", "stream"))
+    g.add_argument("--backend", choices=("auto", "pyrender", "embree", "torch"))
+    g.add_argument("--class-balance", choices=("none", "sampler", "loss"))
+    g.add_argument("--epochs", type=int)
+    g.add_argument("--seed", type=int)
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.budget is not None and not args.budget > 0:
         p.error(f"--budget must be a positive number of seconds, got {args.budget}")
     if args.calibrate < 1 or not args.eval_reserve >= 0:
         p.error("--calibrate must be >= 1 and --eval-reserve >= 0")
+    if (args.epochs is not None and args.epochs < 1) or (args.seed is not None and args.seed < 0):
+        p.error("--epochs must be >= 1 and --seed >= 0")
     from hbeo.rundir import RunDir
     args.run = Path(args.run) if args.run else RunDir.for_run(args.profile, args.dataset).path
     args.run.mkdir(parents=True, exist_ok=True)

@@ -97,9 +97,15 @@ def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_
 @pytest.mark.slow
 def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_fit(tmp_path):
     run, out = tmp_path / "run", tmp_path / "out"
-    r = _job(run, out, "--budget", "120", "--calibrate", "3", "--eval-reserve", "20")
+    # with training flags and the validation split (choosing a recipe: never the test split)
+    r = _job(run, out, "--budget", "120", "--calibrate", "3", "--eval-reserve", "20", "--split", "val",
+             "--class-balance", "sampler", "--seed", "1")
     assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
     lease = json.loads((out / "lease.json").read_text())
+    assert lease["split"] == "val" and lease["train_options"] == {"class_balance": "sampler", "seed": 1}
+    val = json.loads((out / "eval_val_hbeo_3dof.json").read_text())
+    assert val["split"] == "val" and not (out / "eval_hbeo_3dof.json").exists()
+    assert lease["provenance"]["options"]["class_balance"] == "sampler" and lease["provenance"].get("seed") == 1
     b = lease["budget"]
     assert b["calibration_steps"] == 3 and b["step_s"] > 0 and b["seconds"] == 120
     assert 3 <= lease["steps"] <= b["max_steps"]   # the chosen steps, or the profile's all when fewer
@@ -107,6 +113,13 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
     assert "budget 120 s" in (run / "job.log").read_text()
     bad = _job(tmp_path / "run2", tmp_path / "out3", "--budget", "-5")
     assert bad.returncode == 2 and "--budget" in bad.stderr
+
+
+def test_device_job_refuses_bad_training_flags(tmp_path):
+    for flags, word in ((("--epochs", "0"), "--epochs"), (("--seed", "-1"), "--seed"),
+                        (("--class-balance", "some"), "--class-balance"), (("--split", "train"), "--split")):
+        r = _job(tmp_path / "run", tmp_path / "out", *flags)
+        assert r.returncode == 2 and word in r.stderr, (flags, r.stderr)
 
 
 def test_device_tree_slim_leaves_the_model_files_behind_and_restore_tracks_them_again(tmp_path):
