@@ -191,6 +191,25 @@ def test_torch_stream_batches_are_the_images_rendered_one_by_one(torch_stream):
     assert set(items[0]) == {"depth", "label", "rotation", "axis_angle", "coeffs", "object_index"}
 
 
+def test_stream_validation_renders_once_and_gives_the_same_items_again(torch_stream, monkeypatch):
+    from hbeo.model import trainingdata
+    _, data = torch_stream
+    val = data().val
+    first = list(val)
+    calls = []
+    monkeypatch.setattr(type(val.base), "__iter__", lambda self: calls.append(1) or iter(()))
+    again = list(val)                                        # the kept pass: the base is not read
+    assert not calls and len(again) == len(first) == len(val) > 0
+    for a, b in zip(first, again):
+        assert torch.equal(a["depth"], b["depth"]) and a["label"] == b["label"]
+    val.set_epoch(1)                                         # another epoch's views: read again
+    assert list(val) == [] and calls
+    monkeypatch.undo()                                       # the base renders again
+    monkeypatch.setattr(trainingdata, "STREAM_CACHE_PIXELS", 1)     # a pass too large to keep
+    fresh = data().val
+    assert len(list(fresh)) == len(first) and fresh._kept is None
+
+
 def test_torch_stream_roll_turns_pose_and_image_together(torch_stream):
     _, data = torch_stream
     base = data().train.base

@@ -228,12 +228,21 @@ class ModelView(Dataset):
         return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
 
 
+#: :class:`ModelViewStream` keeps a pass's items for the next one up to this many depth pixels (4 bytes each)
+STREAM_CACHE_PIXELS = 2**28
+
+
 class ModelViewStream(IterableDataset):
-    """:class:`ModelView` for an iterable view dataset (validation views rendered on the fly, in order)."""
+    """:class:`ModelView` for an iterable view dataset (validation views rendered on the fly, in order).
+    Without ``roll``, a pass that ran to its end is kept (up to :data:`STREAM_CACHE_PIXELS` depth pixels)
+    and the next pass of the same epoch yields it again instead of rendering the same images: validation
+    scores the same views after every training epoch, and rendering them one object at a time cost the
+    streamed training most of its time outside the loop (the second GPU lease)."""
 
     def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False):
         self.base, self.K, self.opts, self.roll = base, K, opts, roll
         self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
+        self._kept: tuple[int, list] | None = None          # (the base's epoch, the items of a whole pass)
 
     def set_epoch(self, epoch: int) -> None:
         self.base.set_epoch(epoch)
@@ -242,9 +251,25 @@ class ModelViewStream(IterableDataset):
         return len(self.base)
 
     def __iter__(self):
+        epoch = getattr(self.base, "epoch", 0)
+        if self._kept is not None and self._kept[0] == epoch:
+            yield from self._kept[1]
+            return
+        items, pixels = ([] if not self.roll else None), 0
         for raw in self.base:
             item = model_item(raw, self.K, self.opts, self.coeff_mean, self.coeff_std)
-            yield roll_item(item, self.K) if self.roll else item
+            item = roll_item(item, self.K) if self.roll else item
+            if items is not None:
+                pixels += int(np.prod(item["depth"].shape))
+                items = items if pixels <= STREAM_CACHE_PIXELS else None
+                if items is not None:
+                    items.append(item)
+            yield item
+        if items is not None:
+            self._kept = (epoch, items)
+
+    def __getstate__(self):          # DataLoader workers start without the kept pass
+        return {**self.__dict__, "_kept": None}
 
 
 @dataclass
