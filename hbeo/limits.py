@@ -196,6 +196,14 @@ def check_evaluation(n_objects: int, views: int, methods: int = 1, image_size=(0
             f"value that fits is {fit:,} (or fewer objects: --per-class)")
 
 
+def usable_cores(fallback: int = 1) -> int:
+    """The CPUs this process may run on (its affinity where the OS tells it, else the machine's count, else
+    ``fallback``)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or fallback
+
+
 def check_workers(workers, option: str = "--workers", memory: int | None = None) -> int:
     """``workers`` as an int, or ResourceError when that many local processes (:data:`WORKER_BYTES` each)
     exceed the available memory, or there are more than :data:`MAX_WORKERS_PER_CORE` per core."""

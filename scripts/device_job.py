@@ -129,11 +129,15 @@ VAL_EVAL = "eval_val_hbeo_3dof.json"     # --split val: the validation objects' 
                                          # keeps its name, eval_hbeo_3dof.json)
 
 
+def train_flags(args) -> dict:
+    """The training flags (:data:`TRAIN_FLAGS`) the job was given, by TrainOptions' names."""
+    return {k: getattr(args, k) for k in TRAIN_FLAGS if getattr(args, k, None) is not None}
+
+
 def train_options(args, **kw):
-    """The worker's TrainOptions: the job's training flags (:data:`TRAIN_FLAGS`) and ``kw``."""
+    """The worker's TrainOptions: the job's training flags (:func:`train_flags`) and ``kw``."""
     from hbeo.model.fit import TrainOptions
-    given = {k: getattr(args, k) for k in TRAIN_FLAGS if getattr(args, k, None) is not None}
-    return TrainOptions(**given, **kw)
+    return TrainOptions(**train_flags(args), **kw)
 
 
 def fit_budget(run, args, t_start: float) -> dict:
@@ -217,13 +221,11 @@ def worker(args) -> int:
     import torch
     device = "cuda" if torch.cuda.is_available() else None
     if args.split == "val":          # choosing between recipes: the validation objects, never the test split
-        from hbeo.evaluation.evaluate import evaluate_model
         from hbeo.storage import atomic_text, json_text
         model = run.model(progress=False)
         if device:
             model.to(device)
-        metrics = evaluate_model(model, run.dataset, split="val", views=run.profile.evaluation.eval_views,
-                                 seed=protocol.SEED, progress=False)
+        metrics = protocol.evaluate_validation(model, run, progress=False)
         atomic_text(run.path / VAL_EVAL, json_text(metrics, indent=1))
     else:
         metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False, device=device)
@@ -232,7 +234,7 @@ def worker(args) -> int:
     prof = run.profile
     steps = int(ck.get("step", 0))
     state.update(status="done", profile=prof.name, dataset=run.dataset.name, steps=steps, split=args.split,
-                 train_options={k: getattr(args, k) for k in TRAIN_FLAGS if getattr(args, k) is not None},
+                 train_options=train_flags(args),
                  batch_size=prof.recipe.batch_size, images_seen=steps * prof.recipe.batch_size,
                  image_size=list(prof.data.image_size), train_data=prof.data.train_data,
                  provenance=_read_json(prov),
@@ -251,9 +253,8 @@ def start_worker(args) -> int:
         cmd += ["--max-steps", str(args.max_steps)]
     if args.budget:
         cmd += ["--budget", str(args.budget), "--calibrate", str(args.calibrate), "--eval-reserve", str(args.eval_reserve)]
-    for k in TRAIN_FLAGS:
-        if getattr(args, k) is not None:
-            cmd += ["--" + k.replace("_", "-"), str(getattr(args, k))]
+    for k, v in train_flags(args).items():
+        cmd += ["--" + k.replace("_", "-"), str(v)]
     cmd += ["--split", args.split]
     log = open(Path(args.run) / LOG, "ab")
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT,

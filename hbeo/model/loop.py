@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import random
 import time
 from contextlib import contextmanager, nullcontext
@@ -46,6 +45,7 @@ from torch.utils.data import DataLoader, Dataset, IterableDataset
 from tqdm.auto import tqdm
 
 from hbeo.errors import DataError
+from hbeo.limits import usable_cores
 from hbeo.model import distributed
 from hbeo.model.distributed import World, rank_slice
 from hbeo.rundir import CHECKPOINT, RANKS, TRAIN_LOG
@@ -163,7 +163,7 @@ def cpu_threads(n: int | None):
     if n is None:
         yield before
         return
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 2)
+    cores = usable_cores(fallback=2)
     torch.set_num_threads(max(1, cores // 2) if n == 0 else int(n))
     try:
         yield torch.get_num_threads()

@@ -255,18 +255,19 @@ class ModelViewStream(IterableDataset):
         if self._kept is not None and self._kept[0] == epoch:
             yield from self._kept[1]
             return
-        items, pixels = ([] if not self.roll else None), 0
+        keep, pixels = (None if self.roll else []), 0         # rolled views differ every pass: never kept
         for raw in self.base:
             item = model_item(raw, self.K, self.opts, self.coeff_mean, self.coeff_std)
             item = roll_item(item, self.K) if self.roll else item
-            if items is not None:
-                pixels += int(np.prod(item["depth"].shape))
-                items = items if pixels <= STREAM_CACHE_PIXELS else None
-                if items is not None:
-                    items.append(item)
+            if keep is not None:
+                pixels += item["depth"].numel()
+                if pixels > STREAM_CACHE_PIXELS:
+                    keep = None
+                else:
+                    keep.append(item)
             yield item
-        if items is not None:
-            self._kept = (epoch, items)
+        if keep is not None:
+            self._kept = (epoch, keep)
 
     def __getstate__(self):          # DataLoader workers start without the kept pass
         return {**self.__dict__, "_kept": None}

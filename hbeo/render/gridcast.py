@@ -30,7 +30,8 @@ Memory: per object the field (float32) and the safe distance (uint8) over its bo
 50 kB for a ModelNet10 object at R = 30 (a few hundred MB for all of ModelNet10's training grids).
 
 Imports torch, numpy, scipy, :mod:`hbeo.conventions`, :mod:`hbeo.rotations` (the poses are checked on the host,
-B x 9 numbers, before the march) and :mod:`hbeo.render.renderer`.
+B x 9 numbers, before the march), :mod:`hbeo.limits` (the CPUs for smoothing in worker processes) and
+:mod:`hbeo.render.renderer`.
 """
 from __future__ import annotations
 
@@ -105,8 +106,8 @@ def _volumes(grids: list, smooth: float, workers: int | None) -> list:
     """:func:`_volume` of every grid, in order: in this process, or split between ``workers`` processes
     (None: every CPU, up to 16, where there are :data:`PARALLEL_MIN_CPUS` and :data:`PARALLEL_MIN_GRIDS`
     grids; 0 or 1: this process). Each grid's figures are the same either way (the same function)."""
-    import os
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    from hbeo.limits import usable_cores
+    cpus = usable_cores()
     if workers is None:
         workers = min(cpus, 16) if cpus >= PARALLEL_MIN_CPUS and len(grids) >= PARALLEL_MIN_GRIDS else 1
     workers = min(int(workers), len(grids))
