@@ -92,6 +92,12 @@ def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_
     assert r.returncode in (0, 3), r.stderr                      # 3: this tree with dest passes 64 MiB
     assert (dest / "modelnet10_vox30.npz").read_bytes() == Path(vox30_file).read_bytes()
     assert "to travel" in r.stdout and (r.returncode == 0 or "device_tree.sh slim" in r.stderr)
+    # over the limit: exit 3 with the largest files listed (sort | head ended with SIGPIPE, 141, in CI)
+    r = subprocess.run(["bash", str(ROOT / "scripts" / "device_prepare.sh"), str(dest)], capture_output=True,
+                       text=True, env={**env, "LIMIT_MIB": "0"}, timeout=120)
+    assert r.returncode == 3, r.stderr
+    listed = r.stderr.split("The largest files that travel:")[1].split()
+    assert len(listed) == 10 and all(n.isdigit() for n in listed[::2])
 
 
 @pytest.mark.slow
