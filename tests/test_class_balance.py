@@ -63,6 +63,18 @@ def test_prior_correction_refuses_what_it_cannot_do(tiny_model, tmp_path):
     for bad in ([1.5, 2], [-1, 2], [0, 0], "12"):
         with pytest.raises(ValueError, match="class_counts"):
             ModelSettings(class_counts=bad)
+    # a class-balanced model saw its classes equally often: its file's counts are not its prior
+    balanced = tiny_model({"class_counts": (30, 10), "class_balance": "sampler"})
+    assert balanced.set_prior_tau(0.0).prior_tau == 0.0
+    with pytest.raises(ValueError, match="class balance 'sampler'.*twice"):
+        balanced.set_prior_tau(1.0)
+    path = balanced.save(tmp_path / "bal.hbeo")
+    assert HBEO.load(path).settings.class_balance == "sampler"
+    with pytest.raises(DataError, match="bal.hbeo.*class balance 'sampler'"):
+        HBEO.load(path, prior_tau=1.0)
+    assert balanced.set_prior_tau(1.0, class_counts=(1, 1), source="uniform").prior_source == "uniform"
+    with pytest.raises(ValueError, match="class_balance must be one of none, sampler, loss"):
+        ModelSettings(class_balance="equal")
 
 
 # --------------------------------------------------------------------------- class-balanced training
@@ -138,6 +150,7 @@ def test_train_command_balances_classes_and_records_the_counts(ci_render, ci_run
                                                             minlength=len(model.classes)).tolist())
     info = json.loads((run.training(run.model) / "provenance.json").read_text())
     assert info["class_balance"] == balance and info["options"]["class_balance"] == balance
+    assert model.settings.class_balance == balance
     settings = load_checkpoint(run.training(run.model) / "checkpoint.pt")["settings"]
     assert ("class_weights" in settings["model"]) == (balance == "loss")
     assert settings["train"]["data"].get("class_balance") == ("sampler" if balance == "sampler" else None)

@@ -257,7 +257,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
                       "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,
                       "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll,
-                      "shape_loss": shape_loss, "class_counts": counts}
+                      "shape_loss": shape_loss, "class_counts": counts,
+                      "class_balance": balance}
     model = HBEO(net.cpu(), sub, data.settings.intrinsics, data.classes, model_settings)
     if not distributed.world().main:
         return model, model_path

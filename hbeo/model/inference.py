@@ -142,13 +142,18 @@ class HBEO:
 
         ``class_counts`` (C,): the training images (or objects) per class; None: the model file's
         (:attr:`ModelSettings.class_counts`). ValueError when ``tau`` is not in [0, 1], or ``tau`` > 0 and
-        no counts are known or a class has none. ``source`` says where given counts come from (recorded
+        no counts are known or a class has none, or the file's counts are asked for a class-balanced model. ``source`` says where given counts come from (recorded
         as :attr:`prior_source`; the file's are ``"model file"``)."""
         if not _finite(tau) or not 0 <= tau <= 1:
             raise ValueError(f"prior_tau must be a number in [0, 1], got {tau!r}")
         counts, where = class_counts, source or "given"
         if counts is None:
             counts, where = self.settings.class_counts, "model file"
+            if tau > 0 and self.settings.class_balance != "none":
+                raise ValueError(f"prior correction: this model was trained with class balance "
+                                 f"{self.settings.class_balance!r}, so it saw its classes about equally often and "
+                                 f"its file's class counts are not its prior (correcting by them would count the "
+                                 f"imbalance twice); pass class_counts to correct by a prior of your own")
         log_prior = None
         if counts is not None:
             counts = np.asarray(counts, np.float64)

@@ -62,6 +62,9 @@ from hbeo.storage import atomic_file
 from hbeo.subspace.basis import FORMAT_VERSION as SUBSPACE_FORMAT_VERSION, ObjectSubspace
 
 FORMAT = "hbeo-model"
+#: The training's class balance a model file may record (:data:`hbeo.model.trainingdata.CLASS_BALANCE` says
+#: what each does).
+CLASS_BALANCE = ("none", "sampler", "loss")
 FORMAT_VERSION = 2
 KINDS = {"hbeo": "an HBEO model", "voxcnn": "a VoxCNN baseline (3-D CNN) model"}
 META, WEIGHTS, SUBSPACE = "meta.json", "weights.safetensors", "subspace.npz"
@@ -128,6 +131,10 @@ class ModelSettings:
         epoch draws from, before any class balancing), or None (not recorded: files written before
         the field existed). The training class prior of the prior correction
         (:meth:`hbeo.model.inference.HBEO.set_prior_tau`).
+    ``class_balance``
+        how training countered the class imbalance (:data:`CLASS_BALANCE`; ``"none"``: the counts above
+        are the class prior the network learnt, and files written before the field existed). A balanced
+        model saw its classes about equally often, so ``class_counts`` is not its prior.
 
     Frozen: a model's settings are what its file says. :meth:`from_dict` / :meth:`to_dict` are the
     file's reader and writer."""
@@ -142,6 +149,7 @@ class ModelSettings:
     augment_roll: bool = False
     shape_loss: str = "coeffs"
     class_counts: tuple | None = None
+    class_balance: str = "none"
 
     def __post_init__(self):
         def bad(name, want, value):
@@ -171,6 +179,8 @@ class ModelSettings:
             bad("profile", "a profile name or null", self.profile)
         if not isinstance(self.shape_loss, str):
             bad("shape_loss", "a shape loss name", self.shape_loss)
+        if self.class_balance not in CLASS_BALANCE:
+            bad("class_balance", f"one of {', '.join(CLASS_BALANCE)}", self.class_balance)
         if self.class_counts is not None:
             counts = self.class_counts.tolist() if isinstance(self.class_counts, np.ndarray) else self.class_counts
             if (not isinstance(counts, (list, tuple)) or not counts

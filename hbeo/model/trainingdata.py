@@ -30,6 +30,7 @@ from hbeo.limits import check_in_memory
 from hbeo.data import datasets
 from hbeo.data.datasets import VAL_SEED
 from hbeo.data.gridset import run_gridsets
+from hbeo.model import modelfile
 from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.preprocess import to_model_view
 from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
@@ -52,7 +53,7 @@ SHARD_MIX = 8
 #: paper's), ``sampler`` (each epoch draws as many training images as it has, with replacement, image i with
 #: weight 1 / its class's count: every class equally often; :class:`ClassBalanced`) or ``loss`` (the
 #: cross-entropy weighted by inverse class frequency, mean weight 1 over the classes: :func:`class_weights`).
-CLASS_BALANCE = ("none", "sampler", "loss")
+CLASS_BALANCE = modelfile.CLASS_BALANCE
 
 
 @dataclass(frozen=True)
