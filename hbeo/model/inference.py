@@ -142,8 +142,9 @@ class HBEO:
 
         ``class_counts`` (C,): the training images (or objects) per class; None: the model file's
         (:attr:`ModelSettings.class_counts`). ValueError when ``tau`` is not in [0, 1], or ``tau`` > 0 and
-        no counts are known or a class has none, or the file's counts are asked for a class-balanced model. ``source`` says where given counts come from (recorded
-        as :attr:`prior_source`; the file's are ``"model file"``)."""
+        no counts are known or a class has none, or the file's counts are asked for a class-balanced model
+        (:attr:`ModelSettings.class_balance`). ``source`` says where given counts come from (recorded as
+        :attr:`prior_source`; the file's are ``"model file"``)."""
         if not _finite(tau) or not 0 <= tau <= 1:
             raise ValueError(f"prior_tau must be a number in [0, 1], got {tau!r}")
         counts, where = class_counts, source or "given"
