@@ -327,7 +327,7 @@ class Run:
         if main:
             info = {"model": path.name, "recipe": opts.recipe(prof), "epochs": opts.epochs or prof.recipe.epochs,
                     "resumed_from_step": resumed, "n_params": model.net.n_params()}
-            if (balance := opts.class_balance or prof.recipe.class_balance) != "none":
+            if (balance := info["recipe"]["class_balance"]) != "none":
                 info["class_balance"] = balance
             if opts.changed():
                 info["options"] = opts.changed()

@@ -157,3 +157,17 @@ def test_train_command_balances_classes_and_records_the_counts(ci_render, ci_run
     if balance == "sampler":                          # the shards source reads a few shards at a time: refused
         assert cli.main([*args[:-1], "--data", "shards", "--name", "other.hbeo", "--quiet"]) == 2
         assert "class balance 'sampler'" in capsys.readouterr().err and not run.model_file("other.hbeo").exists()
+
+
+def test_the_cpu_recipe_balances_classes_and_the_paper_option_does_not():
+    """The cpu profile's model draws classes uniformly (chosen on validation, issue 29); notebook 04's
+    ``paper`` option keeps the paper's class mix, and ``--class-balance none`` overrides the profile."""
+    from hbeo import config
+    from hbeo.lessons.training import PAPER_RECIPE
+    from hbeo.model.fit import TrainOptions
+    cpu, ci = config.get_profile("cpu"), config.get_profile("ci")
+    assert TrainOptions().recipe(cpu)["class_balance"] == "sampler"
+    assert TrainOptions(class_balance="none").recipe(cpu)["class_balance"] == "none"
+    assert TrainOptions(**PAPER_RECIPE).recipe(cpu) == PAPER_RECIPE
+    assert TrainOptions().recipe(ci)["class_balance"] == "none"
+    assert set(PAPER_RECIPE) == set(config.RecipeConfig(epochs=1, batch_size=1).fit_kwargs())

@@ -80,7 +80,7 @@ def predictions_figure(model, ds, view_sampler, n: int = 5, seed: int = 1):
 
 
 #: The paper's training recipe (:meth:`hbeo.config.RecipeConfig.fit_kwargs`'s keys).
-PAPER_RECIPE = {"rotation": "axis_angle", "augment_roll": False, "shape_loss": "coeffs"}
+PAPER_RECIPE = {"rotation": "axis_angle", "augment_roll": False, "shape_loss": "coeffs", "class_balance": "none"}
 #: The variants notebook 04 can train (a profile's ``options`` picks them): the paper's recipe, the 6-D
 #: rotation output, 6-D with the distance-insensitive input, and the profile's own recipe.
 OPTIONS = ("paper", "6d", "6d_dist", "recipe")
@@ -90,8 +90,8 @@ def option_variants(run, epochs: int | None = None, progress: bool = True) -> pd
     """Train the paper's recipe, the options beyond it and the run's own recipe on the run's data, all
     for the same epochs (``epochs``, else the profile's ``option_epochs``, else its ``epochs``), and
     score each on the validation objects (:func:`hbeo.evaluation.protocol.evaluate_validation`; the
-    test split is not used to compare options): accuracy, median pose error (raw and modulo
-    symmetry), share within 30 degrees, IoU and the share of empty completions."""
+    test split is not used to compare options): class-mean accuracy (the paper's metric), accuracy, median
+    pose error (raw and modulo symmetry), share within 30 degrees, IoU and the share of empty completions."""
     from hbeo.model.fit import TrainOptions
     from hbeo.model.trainingdata import ViewOptions
     from hbeo.evaluation.protocol import evaluate_validation
@@ -101,7 +101,9 @@ def option_variants(run, epochs: int | None = None, progress: bool = True) -> pd
              "6d": ("6-D rotation", {**PAPER_RECIPE, "rotation": "6d"}),
              "6d_dist": ("6-D + distance-insensitive", {**PAPER_RECIPE, "rotation": "6d", "view": ViewOptions(True, 1.7)}),
              "recipe": (f"this profile's recipe: {prof.recipe.rotation}, roll {'on' if prof.recipe.augment_roll else 'off'}, "
-                        f"{prof.recipe.shape_loss} loss", prof.recipe.fit_kwargs())}
+                        f"{prof.recipe.shape_loss} loss"
+                        + (f", class balance {prof.recipe.class_balance}" if prof.recipe.class_balance != "none" else ""),
+                        prof.recipe.fit_kwargs())}
     unknown = set(prof.recipe.options) - set(OPTIONS)
     if unknown:
         raise ValueError(f"profile {prof.name}: unknown options {sorted(unknown)}; expected some of {OPTIONS}")
@@ -113,7 +115,7 @@ def option_variants(run, epochs: int | None = None, progress: bool = True) -> pd
         model = run.train(opts, progress=progress).model
         v = evaluate_validation(model, run, progress=progress)
         rows[f"{name} ({n} epochs)"] = {
-            "accuracy": v["accuracy"], "pose median (°)": v["pose_error_deg"]["median"],
+            "class mean": v["class_mean_accuracy"], "accuracy": v["accuracy"], "pose median (°)": v["pose_error_deg"]["median"],
             "pose median sym (°)": v["pose_error_deg"]["median_sym"], "within 30°": v["pose_error_deg"]["within_30"],
             "IoU": v["completion"]["iou"], "empty completions": v["completion"]["empty_fraction"],
             "n queries": v["n_queries"]}

@@ -168,7 +168,8 @@ class TrainOptions:
     loader_workers: int = 0
 
     def recipe(self, prof) -> dict:
-        """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``."""
+        """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
+        ``class_balance``."""
         return {k: v if (v := getattr(self, k)) is not None else d for k, d in prof.recipe.fit_kwargs().items()}
 
     def changed(self) -> dict:
@@ -207,13 +208,13 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     opts = options or TrainOptions()
     recipe = opts.recipe(prof)
     rotation, augment_roll, shape_loss = recipe["rotation"], recipe["augment_roll"], recipe["shape_loss"]
+    balance = recipe["class_balance"]
     view = opts.view
     source = opts.data or prof.data.train_data
     if source not in DATA_SOURCES:
         raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
     if shape_loss not in SHAPE_LOSSES:
         raise ValueError(f"unknown shape loss {shape_loss!r}; expected one of {', '.join(SHAPE_LOSSES)}")
-    balance = opts.class_balance or prof.recipe.class_balance
     if balance not in CLASS_BALANCE:
         raise ValueError(f"unknown class balance {balance!r}; expected one of {', '.join(CLASS_BALANCE)}")
     if balance == "sampler" and source == "shards":

@@ -150,6 +150,12 @@ def deviations(man: dict, run=None) -> list[str]:
     n_params = f"{main['n_params'] / 1e6:.2f} M" if main.get("n_params") else "fewer"
     paper = config.RecipeConfig(epochs=0, batch_size=0).fit_kwargs()     # the recipe's defaults are the paper's
     recipe = main.get("recipe") or {k: p[k] for k in paper if k in p}      # the model's record, else the profile's
+    if recipe and "class_balance" not in recipe:          # recorded before class balance existed: none
+        recipe = {**recipe, "class_balance": main.get("class_balance", "none")}
+    balanced, mix = "", ""
+    if recipe.get("class_balance", "none") != "none":
+        balanced = f", class balance `{recipe['class_balance']}` (against the training split's class imbalance)"
+        mix = ", the training split's class mix"
     if set(recipe) != set(paper):
         recipe_line = "- **Training recipe.** The run's manifest does not record the model's training recipe"
     elif recipe == paper:
@@ -159,8 +165,8 @@ def deviations(man: dict, run=None) -> list[str]:
         recipe_line = (
             "- **Training recipe.** The run's model uses the recipe chosen on validation objects: "
             f"pose output `{recipe['rotation']}`, roll augmentation {'on' if recipe['augment_roll'] else 'off'}, "
-            f"shape loss `{recipe['shape_loss']}` (the paper: axis-angle regression, no augmentation, coefficient "
-            f"loss). The paper's recipe is trained in notebook 04 for comparison ({p.get('option_epochs') or p.get('epochs')} "
+            f"shape loss `{recipe['shape_loss']}`{balanced} (the paper: axis-angle regression, no augmentation, "
+            f"coefficient loss{mix}). The paper's recipe is trained in notebook 04 for comparison ({p.get('option_epochs') or p.get('epochs')} "
             "epochs, validation objects)")
     why = ("the `full` profile is the paper's scale, on a GPU" if p.get("needs_gpu") else
            "the reproduction must finish on a 2-core machine (the `full` profile is the paper's scale, GPU only)")
