@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # The committed reference run (issue 17) and the README's model table for its model, in the order they were made.
 #   1. `make reproduce PROFILE=cpu DATASET=modelnet10-vox30` from a clean clone at a tagged commit: notebooks
-#      01-07, every model trained inside the run, paper/REPRODUCTION.md written by the run.
+#      01-08, every model trained inside the run, paper/REPRODUCTION.md written by the run.
 #   2. the model table's rows for the run's model.hbeo: validation (one pass, 4 rolls, 4 rolls + verify: the
 #      choices of issue 16, checked again for this model) and the test split with 4 rolls alone (the run's
 #      eval_hbeo_3dof.json and eval_hbeo-verify_3dof.json are the other two test rows; models.json names them).
+#   2b. the other readings of the view protocol (issue 29) for the fast settings (REPRODUCTION.md's claims under
+#      each reading); the slow ones (beo:1dof, beo:3dof, icp:3dof) take hours: METHODS="beo:1dof icp:3dof beo:3dof".
 #   3. the README's generated blocks.
 # Usage: bash scripts/reference_run.sh [PY]   (steps 2-3 only with SKIP_RUN=1)
 set -euo pipefail
@@ -18,5 +20,6 @@ $E --split val --out $R/eval_val-ref.json
 $E --split val --rolls 4 --out $R/eval_val-ref-rolls4.json
 $E --split val --rolls 4 --verify --out $R/eval_val-ref-verify.json
 $E --split test --rolls 4 --out $R/eval_test-ref-rolls4.json
+METHODS="hbeo:3dof hbeo-verify:3dof beo:known voxcnn:known" bash scripts/readings.sh cpu $D $R $PY sphere floor upright
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY -m hbeo report --run $R --out paper/REPRODUCTION.md --readme README.md
