@@ -64,14 +64,8 @@ for split in val test; do
 done
 # 4c. the reference run regenerated with class-balanced sampling (`make reproduce PROFILE=cpu DATASET=$D` at the tag
 #     repro-cpu-2026-11-26-bal; its notebook 04 trains $R/model.hbeo, bit-identical in training to model_bal-sampler),
-#     then its validation and 4-roll rows (scripts/reference_run.sh runs these after the run)
-$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --quiet --out $R/eval_val-ref.json
-$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
-    --out $R/eval_val-ref-rolls4.json
-$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --verify --quiet \
-    --out $R/eval_val-ref-verify.json
-$PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
-    --out $R/eval_test-ref-rolls4.json
+#     then its validation, 4-roll and verify rows and its readings: scripts/reference_run.sh's steps after the run
+SKIP_RUN=1 bash scripts/reference_run.sh "$PY"
 # 4d. (issue 29 item 4) the same recipe with training seeds 1 and 2, the same views (seed 0): the seeds column
 for s in 1 2; do
   $PY -m hbeo train --dataset $D --profile cpu --seed $s --name model-s$s.hbeo --checkpoint-every 500 --quiet
