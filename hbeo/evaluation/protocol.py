@@ -244,14 +244,14 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     (:meth:`hbeo.model.inference.HBEO.set_prior_tau`) with the model file's training class counts, or, for a
     file without them, the dataset's (:func:`hbeo.data.datasets.training_class_counts` of the model's profile;
     the metrics' ``class_prior.source`` says so). Returns the metrics."""
-    from hbeo.baselines.methods import check_method, load_method
-    from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.limits import check_rolls
-    from hbeo.model.inference import HBEO
-    from hbeo.run import baseline_inputs, load_dataset, record_failures
     from hbeo.storage import atomic_file, check_outputs
     check_outputs({"--out": out}, {"--model": model_path})
-    check_rolls(rolls)                                  # before the model is read
+    check_rolls(rolls)                                  # before the model is read (and before torch is imported)
+    from hbeo.baselines.methods import check_method, load_method
+    from hbeo.evaluation.evaluate import evaluate_model
+    from hbeo.model.inference import HBEO
+    from hbeo.run import baseline_inputs, load_dataset, record_failures
     pose = check_method(method, pose)
     model = HBEO.load(model_path, precision=precision)
     folder = RunDir(Path(model_path).parent)

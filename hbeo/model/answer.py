@@ -51,11 +51,11 @@ def verify_config(verify: bool, settings: str | None = None):
     """The :class:`hbeo.model.verify.VerifyConfig` that ``--verify`` and ``--verify-set KEY=VALUE,...`` ask
     for, or None; HBEOError for settings without ``verify`` or settings the config refuses."""
     from hbeo.errors import HBEOError
-    from hbeo.model.verify import VerifyConfig
     if settings and not verify:
         raise HBEOError("--verify-set needs --verify")
     if not verify:
         return None
+    from hbeo.model.verify import VerifyConfig       # (imports torch: only when asked for)
     try:
         return VerifyConfig.parse(settings)
     except ValueError as err:
@@ -126,7 +126,6 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     at fault."""
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
-    from hbeo.model.inference import HBEO
     from hbeo.storage import atomic_files, check_outputs, json_text
     if out is not None:
         check_outputs({"--out": out, "--mesh": mesh_path}, {"--depth": depth_path, "--mask": mask_path,
@@ -139,6 +138,7 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     mask = read_mask(mask_path, depth.shape) if mask_path else None
     if mask is not None and not (mask & (depth > 0)).any():
         raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
+    from hbeo.model.inference import HBEO           # torch: once the inputs are known good
     model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
