@@ -221,6 +221,20 @@ def test_cli_bad_outputs_exit_2_before_any_work_and_overwrite_nothing(ci_model, 
     one_line_error(out, "--out")
 
 
+@pytest.mark.parametrize("command", ["predict", "evaluate"])
+def test_cli_bad_out_exits_2_before_torch_is_imported(tmp_path, command):
+    """A wrong output path is answered at once: torch (seconds to import) is not loaded for it."""
+    model = tmp_path / "model.hbeo"
+    model.write_bytes(b"never read")
+    args = ["--depth", str(tmp_path / "d.png"), "--intrinsics", "65.6,65.6,39.5,29.5"] if command == "predict" else []
+    argv = [command, "--model", str(model), *args, "--out", str(tmp_path / "missing" / "r.json")]
+    code = ("import sys; from hbeo.cli import main; rc = main(sys.argv[1:]); "
+            "print('torch imported' if 'torch' in sys.modules else 'no torch'); sys.exit(rc)")
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True)
+    assert out.returncode == 2, out.stderr
+    assert "does not exist" in out.stderr and out.stdout.strip() == "no torch", (out.stdout, out.stderr)
+
+
 @pytest.mark.slow
 def test_cli_evaluate_out_over_model_and_unknown_class(ci_model, tmp_path):
     model = tmp_path / "model.hbeo"
