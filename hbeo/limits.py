@@ -13,7 +13,7 @@ that names the option, the estimate and the largest value that would fit.
 
 The byte figures are estimates of the peak, measured by ``benchmarks/bench_memory.py``
 (``benchmarks/README.md``); the commands' bounds are stated in README.md ("Memory").
-Imports only the foundation (:mod:`hbeo.errors`).
+Imports only the foundation (:mod:`hbeo.errors`), and threadpoolctl when :func:`one_blas_thread` is first called.
 """
 from __future__ import annotations
 
@@ -202,6 +202,25 @@ def usable_cores(fallback: int = 1) -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or fallback
+
+
+_BLAS_CONTROLLER = None
+
+
+def one_blas_thread():
+    """A context in which numpy's and scipy's BLAS run on one thread (torch's own threads untouched).
+
+    Inference runs a network (torch's OpenMP threads) and small BLAS products (numpy/scipy OpenBLAS) in
+    turn. A BLAS call on several threads leaves its worker threads spinning for a while after it returns;
+    on a machine with few cores they then compete with the next network pass, which in ~4 % of queries took
+    40-110 ms instead of ~4 ms on the 2-core CPU (``benchmarks/README.md``, "Inference: the BLAS threads").
+    Products of one image are too small to gain from threads. The libraries are looked up once a process
+    (``threadpoolctl``, ~9 ms); entering and leaving costs ~25 us."""
+    global _BLAS_CONTROLLER
+    if _BLAS_CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 
 
 def check_workers(workers, option: str = "--workers", memory: int | None = None) -> int:

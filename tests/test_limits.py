@@ -55,6 +55,38 @@ def test_rolls_in_batches_give_the_all_at_once_answer(tiny_model, monkeypatch, r
     assert (parts.grids == whole.grids).all()
 
 
+def _blas_threads() -> list[int]:
+    from threadpoolctl import threadpool_info
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_one_blas_thread_limits_blas_only_and_restores_it():
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = _blas_threads()
+        assert before and max(before) == 2
+        with limits.one_blas_thread():
+            assert set(_blas_threads()) == {1}
+        assert _blas_threads() == before
+
+
+def test_predict_runs_the_network_and_back_projection_with_blas_on_one_thread(tiny_model, monkeypatch):
+    """Spinning BLAS threads slowed ~4 % of network passes 10-30x on 2 cores (benchmarks/README.md,
+    "Inference: the BLAS threads"): the whole prediction runs with numpy's BLAS on one thread."""
+    from threadpoolctl import threadpool_limits
+    m = _bins_model(tiny_model)
+    seen = {}
+    net, reconstruct = m._net, m.subspace.reconstruct
+    monkeypatch.setattr(m, "_net", lambda x: seen.setdefault("net", _blas_threads()) and net(x))
+    monkeypatch.setattr(m.subspace, "reconstruct",
+                        lambda *a, **k: seen.setdefault("reconstruct", _blas_threads()) and reconstruct(*a, **k))
+    with threadpool_limits(limits=2, user_api="blas"):
+        p = m.predict(_depth(m.intrinsics), m.intrinsics)
+        assert max(_blas_threads()) == 2                # restored for the caller
+    assert set(seen["net"]) == {1} and set(seen["reconstruct"]) == {1}
+    assert p.grids.shape == (1, 30, 30, 30)
+
+
 def test_rolls_above_the_cap_are_refused_before_any_pass(tiny_model):
     m = _bins_model(tiny_model)
     with pytest.raises(ResourceError, match=r"rolls 100,000: .*at most 360"):

@@ -32,7 +32,7 @@ from hbeo.model.augment import roll_depth
 from hbeo.conventions import Intrinsics
 from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.errors import DataError
-from hbeo.limits import MAX_ROLLS, ROLL_BATCH, check_rolls
+from hbeo.limits import MAX_ROLLS, ROLL_BATCH, check_rolls, one_blas_thread
 from hbeo.model.modelfile import ModelSettings, read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import View, to_model_view
@@ -255,8 +255,14 @@ class HBEO:
         distribution is turned back and averaged before decoding. The rolled images go through the
         network :data:`hbeo.limits.ROLL_BATCH` at a time (memory does not grow with ``rolls``);
         ``rolls`` above :data:`hbeo.limits.MAX_ROLLS` is refused (:class:`hbeo.limits.ResourceError`).
+        numpy's BLAS runs on one thread meanwhile (:func:`hbeo.limits.one_blas_thread`: its spinning threads
+        would slow the network down).
         """
-        t0 = time.perf_counter()
+        t0 = time.perf_counter()                   # the timing includes setting the limit (~25 us)
+        with one_blas_thread():
+            return self._predict(depth, intrinsics, mask, rolls, t0)
+
+    def _predict(self, depth, intrinsics: Intrinsics, mask, rolls: int, t0: float) -> Prediction:
         rolls = check_rolls(rolls, "rolls")      # a positive integer, at most MAX_ROLLS
         if rolls > 1 and self.net.cfg.rotation != "bins":
             raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")

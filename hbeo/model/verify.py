@@ -48,9 +48,9 @@ import numpy as np
 import torch
 from scipy.linalg import cho_factor, cho_solve
 from scipy.special import logsumexp
-from threadpoolctl import ThreadpoolController
 
 from hbeo.conventions import OBJECT_VOXELS, Intrinsics
+from hbeo.limits import one_blas_thread
 from hbeo.model.network import bin_cosines
 from hbeo.rotations import matrix_to_axis_angle, project_to_so3, z_angle_to_matrix
 from hbeo.subspace.partial import iter_partial
@@ -239,7 +239,6 @@ class Verifier:
         self.class_weighted = [self.cfg.class_weight * P for P in self.class_prec]
         self.class_weighted_mean = [P @ a for P, a in zip(self.class_weighted, self.class_mean)]
         self.bin_grid = (model.net.bin_rotations.double().numpy() if model.net.cfg.rotation == "bins" else None)
-        self._blas = ThreadpoolController()          # found once: looking the libraries up costs ~9 ms a call
 
     def hypotheses_rotations(self, pred, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Rotation modes of query ``i`` in the user's camera (m, 3, 3) and their log weights (m,)."""
@@ -270,7 +269,7 @@ class Verifier:
         if cfg.refine_translation:
             pts = surface_points(pred.grids[i], size)
             ts = np.stack([align_translation(depth, R, ts[0], pts, intrinsics) for R in Rs])
-        with self._blas.limit(limits=1, user_api="blas"):
+        with one_blas_thread():
             for r in range(len(Rs)):                         # each rotation carved at its own translation
                 for rep in range(1 + (cfg.realign if cfg.refine_translation else 0)):
                     if rep:                                   # the best completion at this rotation, aligned
