@@ -149,11 +149,13 @@ def atomic_text(path, text: str) -> None:
 def append_csv(path, rows: list[dict]) -> None:
     """Append ``rows`` (dicts, one per line) to the CSV table at ``path`` (created with a header when
     missing; columns new to it are added, left empty in older rows). The whole table is rewritten
-    atomically (:func:`atomic_text`), so an interruption never leaves a half-written file."""
+    atomically (:func:`atomic_text`), so an interruption never leaves a half-written file; the older rows'
+    cells are read and written back as the text they were (a float such as 20.958594736930078 would come
+    back from pandas' default parser one digit off, an integer column with gaps as floats)."""
     import pandas as pd
     path = Path(path)
-    old = pd.read_csv(path) if path.exists() else pd.DataFrame()
-    atomic_text(path, pd.concat([old, pd.DataFrame(rows)], ignore_index=True).to_csv(index=False))
+    old = pd.read_csv(path, dtype=str, keep_default_na=False) if path.exists() else pd.DataFrame()
+    atomic_text(path, pd.concat([old, pd.DataFrame(rows, dtype=object)], ignore_index=True).to_csv(index=False))
 
 
 def sha256_file(path, chunk_size: int = 1 << 20) -> str:

@@ -74,3 +74,18 @@ def test_append_csv_adds_rows_and_new_columns_through_a_temporary_file(tmp_path)
     assert list(t.columns) == ["a", "b", "c"] and list(t.a) == [1, 2, 3] and list(t.b) == [0.5, 0.25, 0.125]
     assert pd.isna(t.c[0]) and list(t.c[1:]) == ["x", "y"]
     assert sorted(x.name for x in tmp_path.iterdir()) == ["log.csv"]           # no temporary file left
+
+
+def test_append_csv_leaves_the_older_rows_text_as_it_was(tmp_path):
+    """validation.csv lost the last digit of 20.958594736930078 (pandas' default float parser) and wrote a
+    count as 3.0 once a later row left it empty, each time a row was appended."""
+    from hbeo.storage import append_csv
+    p = tmp_path / "log.csv"
+    append_csv(p, [{"a": 3, "b": 20.958594736930078, "c": '{"x": 1, "y": "z"}'}])
+    first = p.read_text().splitlines()
+    append_csv(p, [{"b": 0.1, "c": "", "d": 2}])
+    append_csv(p, [{"a": 4, "b": 1e-300}])
+    lines = p.read_text().splitlines()
+    assert lines[0] == "a,b,c,d" and lines[1] == first[1] + ","
+    assert lines[1].startswith("3,20.958594736930078,")
+    assert lines[2] == ",0.1,,2" and lines[3] == "4,1e-300,,"
