@@ -147,6 +147,13 @@ def _add_verify(p) -> None:
                    help="verify settings over the defaults, e.g. classes=1,noise_var=1 (hbeo.model.verify.VerifyConfig)")
 
 
+def _add_ensemble(p) -> None:
+    p.add_argument("--ensemble", action="append", default=[], metavar="MODEL",
+                   help="another model file (a training seed of --model's recipe) whose answers are averaged with "
+                        "--model's: class probabilities, rotation distributions and coefficients (rotation-bins "
+                        "models with the same classes, camera and subspace; repeat for more; each adds a network pass)")
+
+
 def _add_prior(p) -> None:
     p.add_argument("--prior-tau", type=float, default=0.0, metavar="TAU",
                    help="prior correction: class logits minus TAU * log(training class prior), TAU in [0, 1] "
@@ -157,7 +164,8 @@ def cmd_predict(args) -> int:
     from hbeo.model.answer import predict_file, verify_config
     verify = verify_config(args.verify, args.verify_set)  # bad settings fail before the model is read
     answer = predict_file(args.model, args.depth, args.intrinsics, args.mask, args.depth_scale, args.rolls, verify,
-                          args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau)
+                          args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau,
+                          members=args.ensemble)
     for w in answer.warnings:
         print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     r = answer.to_json()
@@ -171,7 +179,8 @@ def cmd_evaluate(args) -> int:
     metrics = evaluate_file(args.model, args.dataset, args.out, split=args.split, views=args.views, seed=args.seed,
                             sampler=args.sampler, noise=args.noise, per_class=args.per_class, method=args.method,
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
-                            max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau)
+                            max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau,
+                            members=args.ensemble)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     print(json.dumps(short, indent=2))
     return 2 if (metrics["failures"] and args.strict) else 0
@@ -322,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
     _add_verify(p)
     _add_prior(p)
+    _add_ensemble(p)
     p = _command(sub, cmd_evaluate, "evaluate", help="render a dataset's views, predict and write the metrics JSON")
     p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
                                                   "every method; baselines live beside it)")
@@ -335,6 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="voxcnn: when it must be trained first, stop after this many optimizer steps")
     _add_verify(p)
     _add_prior(p)
+    _add_ensemble(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")

@@ -179,3 +179,63 @@ def test_to_a_device_gives_the_same_answers(model, device):
     assert np.allclose(before.probabilities, after.probabilities, atol=1e-5)
     assert np.allclose(before.rotation, after.rotation, atol=1e-4) and np.array_equal(before.grids, after.grids)
     m.to("cpu")
+
+
+# ------------------------------------------------------------------ ensembles of training seeds
+
+def _bins_seed(model, seed, coeff_shift=0.0):
+    torch.manual_seed(seed)
+    net = HBEONet(NetConfig(image_size=(32, 24), n_classes=N_CLASSES, n_coeffs=model.subspace.dim_,
+                            conv_channels=(4, 4, 4, 4), fc=(8, 8, 8), rotation="bins", rotation_bins=256))
+    k = model.subspace.dim_
+    settings = {**model.settings.to_dict(), "coeff_mean": [coeff_shift] * k, "coeff_std": [1.0 + coeff_shift] * k}
+    return HBEO(net, model.subspace, model.intrinsics, model.classes, settings)
+
+
+def test_an_ensemble_averages_its_members_answers(model, tmp_path):
+    """Class probabilities, rotation distributions and de-standardized coefficients are the members' means;
+    the rotation is decoded from the mean distribution; the same network twice answers as one."""
+    K = Intrinsics.kinect(64, 48)
+    d = np.stack([blob_depth(K), blob_depth(K, 2.2)])
+    a, b = _bins_seed(model, 1), _bins_seed(model, 2, coeff_shift=0.5)        # b standardized differently
+    pa, pb = a.predict(d, K), b.predict(d, K)
+    ens = _bins_seed(model, 1).add_members([_bins_seed(model, 2, coeff_shift=0.5)])
+    pe = ens.predict(d, K)
+    assert np.allclose(pe.probabilities, (pa.probabilities + pb.probabilities) / 2, atol=1e-6)
+    assert np.allclose(pe.pose_probs, (pa.pose_probs + pb.pose_probs) / 2, atol=1e-9)
+    assert np.allclose(pe.coeffs, (pa.coeffs + pb.coeffs) / 2, atol=1e-5)
+    want = ens.net.pose_matrix(torch.log(torch.from_numpy(pe.pose_probs))).numpy()
+    assert np.allclose(pe.rotation, pe.view_rotation @ want, atol=1e-6)
+    assert not np.allclose(pa.probabilities, pb.probabilities)                 # the members differ
+    twice = _bins_seed(model, 1).add_members([_bins_seed(model, 1)]).predict(d, K)
+    assert np.allclose(twice.probabilities, pa.probabilities, atol=1e-6)
+    assert np.allclose(twice.rotation, pa.rotation, atol=1e-5) and (twice.grids == pa.grids).all()
+    r4 = _bins_seed(model, 1).add_members([_bins_seed(model, 2, coeff_shift=0.5)]).predict(d, K, rolls=4)
+    assert np.allclose(r4.probabilities.sum(1), 1) and r4.rotation.shape == (2, 3, 3)
+
+
+def test_ensemble_members_must_match_and_an_ensemble_is_not_saved(model, tmp_path):
+    a = _bins_seed(model, 1)
+    with pytest.raises(ValueError, match="rotation-bins"):
+        a.add_members([model])                                                   # a regression head
+    other = _bins_seed(model, 2)
+    other.classes = tuple(reversed(other.classes))
+    with pytest.raises(ValueError, match="member 0 .*classes"):
+        a.add_members([other])
+    with pytest.raises(ValueError, match="already in the ensemble"):
+        a.add_members([a])
+    assert a.members == []                                                       # nothing half-added
+    a.add_members([_bins_seed(model, 2)])
+    with pytest.raises(ValueError, match="not one model file"):
+        a.save(tmp_path / "e.hbeo")
+
+
+def test_load_with_members_records_them_and_names_a_bad_one(model, tmp_path):
+    fa = _bins_seed(model, 1).save(tmp_path / "a.hbeo")
+    fb = _bins_seed(model, 2).save(tmp_path / "b.hbeo")
+    ens = HBEO.load(fa, members=[fb])
+    assert len(ens.members) == 1 and ens.member_files[0]["file"] == "b.hbeo"
+    assert len(ens.member_files[0]["sha256"]) == 64
+    fc = model.save(tmp_path / "regression.hbeo")
+    with pytest.raises(DataError, match=r"regression\.hbeo.*not an ensemble member of a\.hbeo.*rotation-bins"):
+        HBEO.load(fa, members=[fc])

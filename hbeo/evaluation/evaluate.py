@@ -9,7 +9,8 @@ the method had to estimate), ``given_class`` (the true class was given: accuracy
 construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
 the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines),
 ``prior_tau`` (HBEO's prior correction, :meth:`hbeo.model.inference.HBEO.set_prior_tau`: 0 = none, the
-paper's; null for the baselines) and ``class_prior`` (``{tau, source, counts}`` of a correction, else null),
+paper's; null for the baselines), ``class_prior`` (``{tau, source, counts}`` of a correction, else null) and
+``ensemble`` (the files, ``{file, sha256}``, of the models whose answers HBEO's were averaged with, else null),
 ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``, ``verify`` (HBEO's
 verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
@@ -132,11 +133,11 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
                     len(records) - len(failures))
     out["failures"] = failures
     extra = {"precision": None, "rolls": None, "verify": None, "prior_tau": None, "class_prior": None,
-             **method.describe()}
+             "ensemble": None, **method.describe()}
     out["verify"] = extra["verify"]
     return {"method": method.name, "pose": pose, "given_class": (method.name, pose) in GIVEN_CLASS,
             "precision": extra["precision"], "rolls": extra["rolls"], "prior_tau": extra["prior_tau"],
-            "class_prior": extra["class_prior"], **out}
+            "class_prior": extra["class_prior"], "ensemble": extra["ensemble"], **out}
 
 
 def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1, seed: int = 0,

@@ -18,7 +18,8 @@ the conformance suite every registered method passes):
     of the truth it may use is the paper's protocol (:mod:`hbeo.baselines.methods`).
 ``describe() -> dict``
     what the metrics dict records of the method's own settings beyond name and pose (HBEO:
-    ``precision``, ``rolls``, ``verify``, ``prior_tau`` and ``class_prior``; a baseline: ``{}``).
+    ``precision``, ``rolls``, ``verify``, ``prior_tau``, ``class_prior`` and ``ensemble``: the files of the
+    models averaged with it, or None; a baseline: ``{}``).
 
 Preparation is not the loop's: a method arrives ready to answer (a baseline fitted or loaded by
 :func:`hbeo.baselines.methods.load_method`, HBEO loaded and wrapped in :class:`HBEOMethod`).
@@ -114,8 +115,10 @@ class HBEOMethod:
         tau = getattr(self.model, "prior_tau", 0.0)
         prior = None if not tau else {"tau": tau, "source": self.model.prior_source,
                                       "counts": list(self.model.class_counts)}
+        members = getattr(self.model, "member_files", None)
         return {"precision": getattr(self.model, "precision", "float32"), "rolls": self.rolls,
-                "verify": verify.to_dict() if verify is not None else None, "prior_tau": tau, "class_prior": prior}
+                "verify": verify.to_dict() if verify is not None else None, "prior_tau": tau, "class_prior": prior,
+                "ensemble": list(members) if members else None}
 
     def _prediction(self, depth, intrinsics):
         if self._shared is None:

@@ -236,24 +236,27 @@ def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
 def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int = 1, seed: int = 0, sampler=None,
                   noise: bool = False, per_class: int | None = None, method: str = "hbeo", pose: str | None = None,
                   precision: str = "float32", rolls: int = 1, verify=None, max_steps: int | None = None,
-                  progress: bool = True, prior_tau: float = 0.0) -> dict:
+                  progress: bool = True, prior_tau: float = 0.0, members=()) -> dict:
     """``python -m hbeo evaluate``: the metrics of ``method`` (HBEO, or a baseline fitted/trained beside the
     model file when missing) on ``dataset``'s ``split`` (read with the model's profile), written to ``out``
     (JSON); ``split="val"`` also adds a row to the model folder's ``validation.csv``; objects that could not
     be evaluated go to its ``failures.json``. ``prior_tau``: HBEO's prior correction
     (:meth:`hbeo.model.inference.HBEO.set_prior_tau`) with the model file's training class counts, or, for a
     file without them, the dataset's (:func:`hbeo.data.datasets.training_class_counts` of the model's profile;
-    the metrics' ``class_prior.source`` says so). Returns the metrics."""
+    the metrics' ``class_prior.source`` says so). ``members``: model files averaged with HBEO's
+    (:meth:`hbeo.model.inference.HBEO.add_members`; the metrics' ``ensemble`` names them). Returns the metrics."""
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_file, check_outputs
-    check_outputs({"--out": out}, {"--model": model_path})
+    check_outputs({"--out": out}, {"--model": model_path, **{f"--ensemble {f}": f for f in members}})
+    if members and method != "hbeo":
+        raise ValueError(f"--ensemble averages HBEO models; method {method!r} is not HBEO")
     check_rolls(rolls)                                  # before the model is read (and before torch is imported)
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.model.inference import HBEO
     from hbeo.run import baseline_inputs, load_dataset, record_failures
     pose = check_method(method, pose)
-    model = HBEO.load(model_path, precision=precision)
+    model = HBEO.load(model_path, precision=precision, members=members)
     folder = RunDir(Path(model_path).parent)
     profile = model.settings.profile or "cpu"
     ds = load_dataset(dataset, profile)
@@ -309,6 +312,7 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
            "model": os.path.basename(str(model_path)), "model_sha256": sha256_file(model_path)[:16],
            "rotation_head": model.net.cfg.rotation, "augment_roll": model.settings.augment_roll,
            "method": metrics["method"] + ("+verify" if metrics.get("verify") else ""), "pose": metrics["pose"],
+           "ensemble": ";".join(str(f["file"]) for f in metrics.get("ensemble") or []),
            "rolls": metrics.get("rolls"), "prior_tau": metrics.get("prior_tau"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
            "views": metrics["views"], "seed": metrics["seed"], "n_objects": metrics["n_objects"],
            "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"],

@@ -114,7 +114,7 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 
 def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_scale: float | None = None,
                  rolls: int = 1, verify=None, precision: str = "float32", out=None, mesh_path=None,
-                 prior_tau: float = 0.0) -> Answer:
+                 prior_tau: float = 0.0, members=()) -> Answer:
     """``python -m hbeo predict``: read ``depth_path`` (16-bit PNG in mm or float ``.npy``/``.tiff`` in m,
     times ``depth_scale``), its ``intrinsics`` ``"fx,fy,cx,cy"`` and optional mask file
     (:mod:`hbeo.model.depthfile`), and answer with the model file ``model_path`` (network arithmetic
@@ -123,13 +123,15 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     written there and, with ``mesh_path``, the completed shape placed in the camera frame
     (:meth:`hbeo.model.inference.HBEO.to_mesh`); both files are complete before either is renamed into
     place, and a bad output path (or one naming an input) fails before any work. DataError names the file
-    at fault."""
+    at fault. ``members``: model files averaged with ``model_path``'s (:meth:`hbeo.model.inference.HBEO.add_members`;
+    the answer's ``ensemble`` names them)."""
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_files, check_outputs, json_text
     if out is not None:
         check_outputs({"--out": out, "--mesh": mesh_path}, {"--depth": depth_path, "--mask": mask_path,
-                                                            "--model": model_path})
+                                                            "--model": model_path,
+                                                            **{f"--ensemble {f}": f for f in members}})
     check_rolls(rolls)                                  # before the model is read
     if mesh_path and Path(mesh_path).suffix.lower() not in MESH_SUFFIXES:
         raise DataError(mesh_path, f"--mesh: unsupported mesh format; expected {', '.join(MESH_SUFFIXES)}")
@@ -139,10 +141,12 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     if mask is not None and not (mask & (depth > 0)).any():
         raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
     from hbeo.model.inference import HBEO           # torch: once the inputs are known good
-    model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau)
+    model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau, members=members)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
                     verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
+    if model.members:
+        answer.extra["ensemble"] = list(model.member_files)
     data = None
     if mesh_path:
         mesh = model.to_mesh(pred)                    # fails before anything is written

@@ -126,6 +126,10 @@ class HBEO:
                              f"{len(self.classes)} classes")
         self._roll_perms: dict = {}
         self.device = torch.device("cpu")
+        #: other models whose answers :meth:`predict` averages with this one's (:meth:`add_members`), and their
+        #: files' names and sha256 (what a metrics file records)
+        self.members: list["HBEO"] = []
+        self.member_files: list[dict] = []
         self.set_precision(precision)
         self.set_prior_tau(prior_tau)
 
@@ -199,7 +203,59 @@ class HBEO:
             for m in self._net.modules():
                 if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear, torch.nn.BatchNorm2d)):
                     m.to(PRECISIONS[precision])
+        for member in getattr(self, "members", ()):
+            member.set_precision(precision)
         return self
+
+    def add_members(self, models, files=None) -> "HBEO":
+        """Average ``models`` (HBEO models trained like this one: other training seeds) with this one; returns self.
+
+        :meth:`predict` then runs every network on each input (and each roll) and averages their class
+        probabilities, their rotation distributions (before decoding, as rolls are) and their coefficients
+        (each de-standardized with its own statistics); the time is the sum. The members must share this
+        model's classes, camera, subspace, input preprocessing and rotation-bin grid (ValueError naming the
+        difference); regression heads cannot be averaged. ``files``: the members' model files, recorded
+        (name and sha256) in :attr:`member_files`. The precision and device are this model's. Not saved:
+        :meth:`save` refuses an ensemble (save each member)."""
+        models = list(models)
+        files = [None] * len(models) if files is None else list(files)
+        if len(files) != len(models):
+            raise ValueError(f"{len(files)} file names for {len(models)} members")
+        for i, (m, f) in enumerate(zip(models, files)):
+            who = f"member {i}" + (f" ({Path(f).name})" if f else "")
+            if m is self or m in self.members:
+                raise ValueError(f"{who}: already in the ensemble")
+            if m.members:
+                raise ValueError(f"{who}: is itself an ensemble")
+            diff = self._member_difference(m)
+            if diff:
+                raise ValueError(f"{who} cannot be averaged with this model: {diff}")
+        from hbeo.storage import sha256_file
+        for m, f in zip(models, files):
+            m.set_precision(self.precision).to(self.device)
+            self.members.append(m)
+            self.member_files.append({"file": Path(f).name, "sha256": sha256_file(f)} if f else {"file": None})
+        return self
+
+    def _member_difference(self, m: "HBEO") -> str | None:
+        """What keeps model ``m`` from being averaged with this one, or None."""
+        if self.net.cfg.rotation != "bins" or m.net.cfg.rotation != "bins":
+            return "an ensemble averages rotation distributions: both must be rotation-bins models"
+        if tuple(m.classes) != tuple(self.classes):
+            return f"classes {m.classes} differ from {self.classes}"
+        if m.intrinsics != self.intrinsics:
+            return "another camera (intrinsics)"
+        for k in ("image_size", "n_classes", "n_coeffs", "rotation_bins"):
+            if getattr(m.net.cfg, k) != getattr(self.net.cfg, k):
+                return f"network {k} {getattr(m.net.cfg, k)} differs from {getattr(self.net.cfg, k)}"
+        if not torch.equal(m.net.bin_rotations.cpu(), self.net.bin_rotations.cpu()):
+            return "another rotation-bin grid"
+        if not np.array_equal(m.subspace.basis_, self.subspace.basis_):
+            return "another subspace (basis)"
+        for k in ("object_size", "recenter", "ref_distance"):
+            if getattr(m.settings, k) != getattr(self.settings, k):
+                return f"settings {k} {getattr(m.settings, k)!r} differs from {getattr(self.settings, k)!r}"
+        return None
 
     def to(self, device) -> "HBEO":
         """Run the network on ``device`` (``"cpu"``, ``"cuda"``, a torch.device); returns self. Inputs are
@@ -210,25 +266,39 @@ class HBEO:
         if self._net is not self.net:
             self._net.to(self.device)
         self._roll_perms.clear()
+        for m in self.members:
+            m.to(device)
         return self
 
     # ------------------------------------------------------------ persistence
     def save(self, path) -> Path:
         """Write the model to one file, atomically (:mod:`hbeo.model.modelfile`; float32 weights
-        whatever the precision)."""
+        whatever the precision). An ensemble (:meth:`add_members`) is refused: save each member."""
+        if self.members:
+            raise ValueError("an ensemble is not one model file: save each member (they are read together with "
+                             "--ensemble)")
         meta = {"net_cfg": self.net.cfg.to_dict(), "classes": list(self.classes),
                 "intrinsics": asdict(self.intrinsics), "settings": self.settings.to_dict()}
         return write_model(path, "hbeo", meta, self.net.state_dict(), self.subspace)
 
     @classmethod
     def load(cls, path, precision: str = "float32", prior_tau: float = 0.0, class_counts=None,
-             counts_source: str | None = None) -> "HBEO":
+             counts_source: str | None = None, members=()) -> "HBEO":
         """Read a model file (:func:`hbeo.model.modelfile.read_model`: nothing is unpickled) onto the
         CPU; DataError naming the file on a missing, corrupt, old-format or inconsistent one.
         ``precision``: see :meth:`set_precision`; ``prior_tau``, ``class_counts``, ``counts_source``: see
-        :meth:`set_prior_tau`."""
+        :meth:`set_prior_tau`; ``members``: other model files averaged with this one (:meth:`add_members`;
+        DataError naming the member that cannot be)."""
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {tuple(PRECISIONS)}, got {precision!r}")
+        if members:
+            model = cls.load(path, precision, prior_tau, class_counts, counts_source)
+            for f in members:
+                try:
+                    model.add_members([cls.load(f, precision)], [f])
+                except ValueError as err:
+                    raise DataError(f, f"not an ensemble member of {Path(path).name}: {err}") from None
+            return model
         mf = read_model(path, "hbeo", _build_net)
         m = mf.meta
         try:
@@ -277,7 +347,9 @@ class HBEO:
         warns = [self._check_view(v, i if len(views) > 1 else None) for i, v in enumerate(views)]
         x0 = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]
-        net_s, prob_sum, coeff_sum, P, pose0 = 0.0, 0.0, 0.0, 0.0, None
+        nets = [(self._net, s)] + [(m._net, m.settings) for m in self.members]
+        one = rolls == 1 and len(nets) == 1             # one pass of one network: its own pose decoding
+        net_s, prob_sum, coeff_sums, P, pose0 = 0.0, 0.0, [0.0] * len(nets), 0.0, None
         step = max(1, ROLL_BATCH // len(views))        # rolls per network pass: memory bounded whatever rolls is
         for r0 in range(0, rolls, step):
             part = angles[r0:r0 + step]
@@ -285,35 +357,39 @@ class HBEO:
                                 for k, a in enumerate(part)])
             x = torch.from_numpy(x[:, None]).to(self.device, PRECISIONS[self.precision]).contiguous(
                 memory_format=torch.channels_last)
-            tn = time.perf_counter()
-            out = {k: v.float().view(len(part), len(views), -1) for k, v in self._net(x).items()}
-            if self.device.type == "cuda":
-                torch.cuda.synchronize(self.device)
-            net_s += time.perf_counter() - tn
-            prob_sum = prob_sum + torch.softmax(out["logits"], dim=2).sum(0)
-            coeff_sum = coeff_sum + out["coeffs"].sum(0)
-            if rolls == 1:
-                pose0 = out["pose"][0]
-            else:
-                p = torch.softmax(out["pose"].double(), dim=2)
-                P = P + sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(part))
+            for j, (net, _) in enumerate(nets):
+                tn = time.perf_counter()
+                out = {k: v.float().view(len(part), len(views), -1) for k, v in net(x).items()}
+                if self.device.type == "cuda":
+                    torch.cuda.synchronize(self.device)
+                net_s += time.perf_counter() - tn
+                prob_sum = prob_sum + torch.softmax(out["logits"], dim=2).sum(0)
+                coeff_sums[j] = coeff_sums[j] + out["coeffs"].sum(0)
+                if one:
+                    pose0 = out["pose"][0]
+                else:
+                    p = torch.softmax(out["pose"].double(), dim=2)
+                    P = P + sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(part))
         t2 = time.perf_counter()
-        probs = self.adjust_probabilities((prob_sum / rolls).cpu().numpy())
+        probs = self.adjust_probabilities((prob_sum / (rolls * len(nets))).cpu().numpy())
         pose_probs = None
-        if rolls == 1:
+        if one:
             R_virtual = self.net.pose_matrix(pose0.double()).cpu().numpy()
             if self.net.cfg.rotation == "bins":
                 pose_probs = torch.softmax(pose0.double(), dim=1).cpu().numpy()
         else:
-            P = P / rolls
+            P = P / (rolls * len(nets))
             R_virtual = self.net.pose_matrix(torch.log(P.clamp_min(1e-300))).cpu().numpy()
             pose_probs = P.cpu().numpy()
-        out = {"coeffs": coeff_sum / rolls}
         Q = np.stack([v.Q for v in views])
         R = Q @ R_virtual
-        coeffs = out["coeffs"].cpu().numpy().astype(np.float64)
-        if s.coeff_std is not None:
-            coeffs = coeffs * np.asarray(s.coeff_std) + np.asarray(s.coeff_mean)
+        coeffs = 0.0
+        for (_, ms), c in zip(nets, coeff_sums):      # each network's output in its own standardization
+            c = (c / rolls).cpu().numpy().astype(np.float64)
+            if ms.coeff_std is not None:
+                c = c * np.asarray(ms.coeff_std) + np.asarray(ms.coeff_mean)
+            coeffs = coeffs + c
+        coeffs = coeffs / len(nets)
         grids = self.subspace.reconstruct(coeffs.astype(np.float32), threshold=0.5)
         t3 = time.perf_counter()
         scale = np.array([v.distance / s.ref_distance if s.ref_distance else 1.0 for v in views])

@@ -281,11 +281,13 @@ TARGETS = (
 
 
 def _check_role(path: Path, role: str, m: dict) -> None:
-    """Refuse a file that is not what its role says: ``hbeo`` one HBEO pass (no rolls, no verify),
-    ``beo-known`` BEO given the true pose."""
-    if role == ONE_PASS and (m.get("method") != "hbeo" or (m.get("rolls") or 1) != 1 or m.get("verify")):
+    """Refuse a file that is not what its role says: ``hbeo`` one HBEO pass (no rolls, no verify, one
+    network), ``beo-known`` BEO given the true pose."""
+    if role == ONE_PASS and (m.get("method") != "hbeo" or (m.get("rolls") or 1) != 1 or m.get("verify")
+                             or m.get("ensemble")):
         raise DataError(path, f"role {ONE_PASS!r} is HBEO's one network pass; this file is method "
-                              f"{m.get('method')!r}, rolls {m.get('rolls')!r}, verify {bool(m.get('verify'))}")
+                              f"{m.get('method')!r}, rolls {m.get('rolls')!r}, verify {bool(m.get('verify'))}, "
+                              f"ensemble members {len(m.get('ensemble') or [])}")
     if role == REFERENCE and (m.get("method"), m.get("pose")) != ("beo", "known"):
         raise DataError(path, f"role {REFERENCE!r} is BEO with known pose; this file is "
                               f"{m.get('method')!r} / {m.get('pose')!r}")
