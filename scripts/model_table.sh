@@ -88,6 +88,13 @@ for r in 8 16; do
   $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls $r --quiet \
       --out $R/eval_val-ref-rolls$r.json
 done
+# 4g. (issue 29 item 2) the three training seeds of 4d averaged (--ensemble), one pass and 4 rolls, on validation.
+#     Rule fixed before (commit c9432e8): joins the extensions only at a validation class mean with 4 rolls of at
+#     least 75.5 % (4 rolls alone + 1 point); it reached 75.1 % (2026-11-27): not chosen, no test files
+for r in 1 4; do
+  $PY -m hbeo evaluate --model $R/model.hbeo --ensemble $R/model-s1.hbeo --ensemble $R/model-s2.hbeo --dataset $D \
+      --split val --views 3 --seed 0 --rolls $r --quiet --out $R/eval_val-ens3-rolls$r.json
+done
 # 4f. (issue 29 item 2) fresh views every pass: the recipe trained on `--data stream` (a fresh pose per object per
 #     pass, rendered by the torch ray marcher as it trains) instead of the 20 fixed views per object, 30 epochs,
 #     seed 0 (about 4.7 h alone on the 2-core VM; resumes from its checkpoint). Rule fixed before its result
