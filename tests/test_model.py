@@ -237,5 +237,12 @@ def test_load_with_members_records_them_and_names_a_bad_one(model, tmp_path):
     assert len(ens.members) == 1 and ens.member_files[0]["file"] == "b.hbeo"
     assert len(ens.member_files[0]["sha256"]) == 64
     fc = model.save(tmp_path / "regression.hbeo")
-    with pytest.raises(DataError, match=r"regression\.hbeo.*not an ensemble member of a\.hbeo.*rotation-bins"):
+    with pytest.raises(DataError, match=r"regression\.hbeo: not an ensemble member of a\.hbeo.*rotation-bins"):
         HBEO.load(fa, members=[fc])
+    copy = tmp_path / "copy.hbeo"
+    copy.write_bytes(fb.read_bytes())
+    for members in ([fa], [fb, copy]):                      # the model itself, or one member twice
+        with pytest.raises(DataError, match="the same model as .*an ensemble averages different models"):
+            HBEO.load(fa, members=members)
+    with pytest.raises(DataError, match=r"missing\.hbeo: no such model file"):
+        HBEO.load(fa, members=[tmp_path / "missing.hbeo"])

@@ -292,10 +292,18 @@ class HBEO:
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {tuple(PRECISIONS)}, got {precision!r}")
         if members:
+            from hbeo.storage import sha256_file
             model = cls.load(path, precision, prior_tau, class_counts, counts_source)
+            seen = {sha256_file(path): str(path)}
             for f in members:
+                member = cls.load(f, precision)             # a bad file: its own DataError
+                digest = sha256_file(f)
+                if digest in seen:
+                    raise DataError(f, f"the same model as {seen[digest]}: an ensemble averages different models "
+                                       f"(other training seeds)")
+                seen[digest] = str(f)
                 try:
-                    model.add_members([cls.load(f, precision)], [f])
+                    model.add_members([member], [f])
                 except ValueError as err:
                     raise DataError(f, f"not an ensemble member of {Path(path).name}: {err}") from None
             return model
