@@ -172,7 +172,7 @@ PROFILES: dict[str, Profile] = {
                                   voxcnn_epochs=3, voxcnn_batch_size=16, voxcnn_lr=3e-3,
                                   voxcnn_views_per_object=None)),
     # cpu: every training object (ModelNet10: 3,991), few views each: object variety matters more
-    # than views per object; small images keep an epoch of ~72k images near two minutes on 2 cores.
+    # than views per object; small images keep an epoch of ~72k images near three minutes on 2 cores (~380 images/s).
     # The recipe (rotation bins, roll augmentation, voxel shape loss, classes drawn uniformly, 30 epochs) is
     # the one chosen on the validation objects (class balance: issue 29, scripts/model_table.sh 2b). Every test object, 3 paired views each; the slow searches (BEO 3-DOF,
     # ICP) on the first view of 10 objects per class (100 queries, a subset of the same pairs).
