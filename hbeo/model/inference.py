@@ -297,15 +297,15 @@ class HBEO:
             seen = {sha256_file(path): str(path)}
             for f in members:
                 member = cls.load(f, precision)             # a bad file: its own DataError
-                digest = sha256_file(f)
-                if digest in seen:
-                    raise DataError(f, f"the same model as {seen[digest]}: an ensemble averages different models "
-                                       f"(other training seeds)")
-                seen[digest] = str(f)
                 try:
                     model.add_members([member], [f])
                 except ValueError as err:
                     raise DataError(f, f"not an ensemble member of {Path(path).name}: {err}") from None
+                digest = model.member_files[-1]["sha256"]   # hashed once, by add_members
+                if digest in seen:
+                    raise DataError(f, f"the same model as {seen[digest]}: an ensemble averages different models "
+                                       f"(other training seeds)")
+                seen[digest] = str(f)
             return model
         mf = read_model(path, "hbeo", _build_net)
         m = mf.meta
