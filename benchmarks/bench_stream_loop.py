@@ -9,6 +9,8 @@ In a fresh run folder (default: a temporary one) of the profile and dataset: the
 - ``caster_s``: the training objects' :class:`hbeo.render.gridcast.GridCaster` built on the training device
   (:meth:`hbeo.render.torch_datasets.FreshPoses.caster`; the grids smoothed in worker processes where the
   machine has the CPUs), which the trainings below then share (:func:`hbeo.render.torch_datasets.shared_caster`);
+- ``ahead_N`` (``--render-ahead N ...``): one more training each, N images rendered in one march
+  (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; the same images whatever N);
 - ``first`` and ``second``: two trainings of ``--steps`` steps each (``Run.train`` with ``max_steps``, as the
   device job's warm-up and calibration), each with its wall time and the loop's images/s from its training
   log (validation and saving are outside the loop); the first pays the process's warm-up (CUDA, cuDNN).
@@ -36,6 +38,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--dataset", default="modelnet10-vox30")
     ap.add_argument("--steps", type=int, default=40, help="steps of each training (40)")
     ap.add_argument("--run", help="run folder (default: a temporary one)")
+    ap.add_argument("--render-ahead", type=int, nargs="*", default=[], metavar="N",
+                    help="then one training of --steps steps per N: images rendered in one march (0: a batch; "
+                         "the default of the trainings above: 2048 on a GPU), e.g. --render-ahead 0 512 2048 8192")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
     import torch
@@ -64,9 +69,11 @@ def main(argv=None) -> dict:
     out["objects"] = caster.n_objects
     print(f"{dev}; {args.profile} on {args.dataset}: subspace {out['subspace_s']} s, caster of "
           f"{caster.n_objects} objects {out['caster_s']} s", flush=True)
-    for name in ("first", "second"):
+    for name, ahead in [("first", None), ("second", None), *((f"ahead_{n}", n) for n in args.render_ahead)]:
         t = time.perf_counter()
-        model = run.train(TrainOptions(name=f"bench-{name}.hbeo", max_steps=args.steps), progress=False)
+        model = run.train(TrainOptions(name=f"bench-{name}.hbeo", max_steps=args.steps, render_ahead=ahead,
+                                       data="stream", backend="torch"),
+                          progress=False)
         wall = time.perf_counter() - t
         row = training_history(run.dir.training(model.path))[-1]
         out[name] = {"wall_s": round(wall, 2), "steps": int(row["step"]),

@@ -127,7 +127,7 @@ def cmd_train(args) -> int:
     from hbeo.model.fit import TrainOptions, parse_loss_weights
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
-            "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance")  # TrainOptions' names
+            "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), **{k: getattr(args, k) for k in same})
     world = distributed.setup()                       # under torchrun: join the other processes
@@ -288,6 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "resumes from it")
     p.add_argument("--loader-workers", type=NONNEG, default=0, metavar="N",
                    help="worker processes that prepare batches while the network trains (default 0: none)")
+    p.add_argument("--render-ahead", type=NONNEG, metavar="N",
+                   help="--data stream --backend torch: images rendered in one march, served to the next batches "
+                        "(default: 2048 on a GPU, one batch on the CPU); the same images, faster on a GPU")
     p.add_argument("--views", type=COUNT, help="rendered views per training object (default: the profile's)")
     p.add_argument("--data", choices=("memory", "shards", "stream"),
                    help="training images: the rendered set in memory, the rendered set read shard by shard, or "

@@ -4,6 +4,7 @@ leave what must come back under a lent GPU machine's transfer limits.
     python scripts/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
                                  [--out DIR] [--wait SECONDS] [--budget SECONDS] [--split test|val]
                                  [--data stream] [--backend torch] [--class-balance sampler] [--epochs N] [--seed S]
+                                 [--render-ahead N]
 
 The training flags override the profile's recipe as ``python -m hbeo train``'s do (e.g. the ``cpu`` profile's
 recipe with fresh views rendered on the GPU: ``--profile cpu --data stream --backend torch``); ``--split val``
@@ -124,7 +125,7 @@ def round_weights_bf16(path: Path) -> None:
 
 
 #: ``python -m hbeo train`` options the device job passes on (TrainOptions' names; None: the profile's)
-TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed")
+TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed", "render_ahead")
 VAL_EVAL = "eval_val_hbeo_3dof.json"     # --split val: the validation objects' metrics (the run's own test file
                                          # keeps its name, eval_hbeo_3dof.json)
 
@@ -316,6 +317,8 @@ def main(argv=None) -> int:
     g.add_argument("--class-balance", choices=("none", "sampler", "loss"))
     g.add_argument("--epochs", type=int)
     g.add_argument("--seed", type=int)
+    g.add_argument("--render-ahead", type=int, metavar="N",
+                   help="stream/torch: images rendered in one march (default 2048 on a GPU)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.budget is not None and not args.budget > 0:

@@ -53,6 +53,16 @@ def test_every_sampler_draws_rotations_deterministically(sampler):
     assert np.allclose(a @ np.swapaxes(a, 1, 2), np.eye(3), atol=1e-9) and np.allclose(np.linalg.det(a), 1)
 
 
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_one_view_from_each_generator_is_each_generators_own_sample(sampler):
+    """sample_each (a streamed batch: one generator per image) gives, bit for bit, sample(1, g) of each g."""
+    vs = ViewSampler(sampler, distance=(1.5, 1.9), shift=0.1)
+    R, t = vs.sample_each([np.random.default_rng([5, i]) for i in range(9)])
+    one = [vs.sample(1, np.random.default_rng([5, i])) for i in range(9)]
+    assert np.array_equal(R, np.concatenate([r for r, _ in one])) and np.array_equal(t, np.concatenate([x for _, x in one]))
+    assert R.shape == (9, 3, 3) and t.shape == (9, 3) and len({r.tobytes() for r in R}) == 9
+
+
 def test_so3_and_upright_draw_what_they_always_drew():
     """The existing readings' draws are unchanged (cached results and rendered sets stay valid): so3 is
     uniform_so3 then depths then offsets; upright is yaw then elevation, no roll."""

@@ -253,3 +253,62 @@ def test_torch_stream_training_resumes_exactly(torch_stream, tmp_path):
     fit(tmp_path / "cut", stop_after_step=5)
     assert load_checkpoint(tmp_path / "cut" / CHECKPOINT)["step"] == 4
     assert weights_sha256(fit(tmp_path / "cut")) == whole
+
+
+def _read(view, order, batch):
+    """``view``'s batches over ``order``, read as the training loader reads them (after plan_reads)."""
+    return [view.__getitems__(order[k:k + batch].tolist()) for k in range(0, len(order), batch)]
+
+
+def _same(a, b):
+    return all(torch.equal(x[k], y[k]) for x, y in zip(a, b) for k in x)
+
+
+def test_torch_stream_rendered_ahead_gives_the_same_images_and_rolls_by_reading_position(torch_stream, monkeypatch):
+    from hbeo.render.torch_datasets import FreshPoses
+    _, data = torch_stream
+    calls = []
+    real = FreshPoses.render_batch
+    monkeypatch.setattr(FreshPoses, "render_batch", lambda self, idx, **kw: calls.append((len(idx), kw)) or
+                        real(self, idx, **kw))
+    order = np.array([3, 3, 5, 0, 1, 2, 3, 7, 9, 11, 4, 6, 8, 10, 3, 2], np.int64)   # drawn with replacement
+    one = data(roll=True).train
+    one.ahead = 0
+    one.plan_reads(order)
+    by_batch = [[it for it in b] for b in _read(one, order, 4)]
+    assert [n for n, _ in calls] == [4] * 4 and all(kw["roll_keys"] is not None for _, kw in calls)
+    calls.clear()
+    ahead = data(roll=True).train
+    ahead.ahead = 6                                           # rounded up to whole batches: 8 images a march
+    ahead.plan_reads(order)
+    assert _same([i for b in _read(ahead, order, 4) for i in b], [i for b in by_batch for i in b])
+    assert [n for n, _ in calls] == [8, 8]
+    # the same object read twice in an epoch is rolled twice (positions 0 and 1), not given the same view
+    first = by_batch[0]
+    assert first[0]["object_index"] == first[1]["object_index"]
+    assert not torch.equal(first[0]["rotation"], first[1]["rotation"])
+    # a resumed epoch (the loader's rest of the order, starting at position 8) reads the same images
+    rest = data(roll=True).train
+    rest.plan_reads(order[8:], start=8)
+    assert _same([i for b in _read(rest, order[8:], 4) for i in b], [i for b in by_batch[2:] for i in b])
+    # a read outside the plan renders alone, as before (rolls from torch's global generator)
+    calls.clear()
+    assert len(rest.__getitems__([5, 5, 5])) == 3 and calls == [(3, {"roll": True})]
+
+
+def test_torch_stream_training_rendered_ahead_gives_the_same_weights(torch_stream, tmp_path):
+    from hbeo.model.distributed import weights_sha256
+    from hbeo.model.fit import HBEONetTask
+    from hbeo.model.loop import train
+    from hbeo.model.network import NetConfig
+    run, data = torch_stream
+
+    def fit(out, ahead):
+        d = data(roll=True, views_per_object=2)
+        d.train.ahead = ahead
+        task = HBEONetTask(NetConfig(image_size=(80, 60), n_classes=2, n_coeffs=len(d.coeff_mean),
+                                     conv_channels=(4, 4, 4, 4), fc=(8, 8, 8)))
+        cfg = TrainConfig(epochs=2, batch_size=8, seed=0, progress=False, device="cpu",
+                          data={"source": "stream", "backend": "torch"})
+        return train(task, d.train, d.val, out, cfg)
+    assert weights_sha256(fit(tmp_path / "a", 0)) == weights_sha256(fit(tmp_path / "b", 24))

@@ -146,7 +146,9 @@ class TrainOptions:
     :attr:`hbeo.run.Run.training_seed`, 0 unless asked, and 0 outside a Run); name: the model file in
     the run folder; max_steps: stop after that many optimizer steps (the schedule ends there);
     checkpoint_every: also checkpoint every that many steps; loader_workers: DataLoader worker processes
-    (0: in this process)."""
+    (0: in this process); render_ahead: ``stream`` data with render backend ``torch``: images rendered in
+    one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: 2,048 on a GPU, a batch on the
+    CPU); it changes the speed, not the images."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -166,6 +168,7 @@ class TrainOptions:
     max_steps: int | None = None
     checkpoint_every: int | None = None
     loader_workers: int = 0
+    render_ahead: int | None = None
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
@@ -242,6 +245,10 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["source"] = source
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
         how["backend"] = "torch"
+        if augment_roll:                    # rolls drawn by reading position (render_batch's roll_keys)
+            how["roll"] = "position"
+        if opts.render_ahead is not None:
+            data.train.ahead = opts.render_ahead
     counts = np.bincount(data.train_labels, minlength=len(data.classes))
     train_set = data.train
     if balance == "sampler":                # unbalanced runs keep the settings (and checkpoints) they had

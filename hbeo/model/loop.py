@@ -205,7 +205,10 @@ def data_loader(dataset: Dataset, cfg: TrainConfig, epoch: int | None = None, wo
                 raise ValueError(f"{type(dataset).__name__} cannot be split between processes (no shard method)")
             dataset.shard(world.rank, world.size)
         return DataLoader(dataset, batch_size=cfg.batch_size, num_workers=cfg.num_workers, generator=gen)
-    order = rank_slice(epoch_order(dataset, cfg, epoch), world)[skip_batches * cfg.batch_size:]
+    mine = rank_slice(epoch_order(dataset, cfg, epoch), world)
+    order = mine[skip_batches * cfg.batch_size:]
+    if hasattr(dataset, "plan_reads"):     # the order it will be read in, and where that starts in the epoch's
+        dataset.plan_reads(order, (world.rank * len(mine) if world.parallel else 0) + skip_batches * cfg.batch_size)
     return DataLoader(dataset, batch_size=cfg.batch_size, sampler=order, num_workers=cfg.num_workers,
                       generator=gen)
 

@@ -2,7 +2,8 @@
 
 Frames and encodings are those of :mod:`hbeo.conventions`: R takes the canonical object
 frame to the camera frame (OpenCV axes), t is the object centre in the camera frame, metres.
-The rotations themselves are built by :mod:`hbeo.rotations` (:func:`~hbeo.rotations.uniform_so3`,
+The rotations themselves are built by :mod:`hbeo.rotations` (:func:`~hbeo.rotations.quaternion_to_matrix`
+of normalized Gaussian quaternions, as :func:`~hbeo.rotations.uniform_so3` draws them,
 :func:`~hbeo.rotations.yaw_elevation_to_matrix`, :func:`~hbeo.rotations.yaw_elevation_roll_to_matrix`).
 Imports numpy and the foundation layer only.
 
@@ -56,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hbeo.rotations import uniform_so3, yaw_elevation_roll_to_matrix, yaw_elevation_to_matrix
+from hbeo.rotations import quaternion_to_matrix, yaw_elevation_roll_to_matrix, yaw_elevation_to_matrix
 
 #: the view samplers, one per reading of "multiple random viewpoints" (module docstring); ``so3`` the main one
 SAMPLERS = ("so3", "upright", "sphere", "floor")
@@ -76,21 +77,38 @@ def check_sampler(name) -> str:
     return name
 
 
+def draw_angles(sampler: str, n: int, rng: np.random.Generator) -> np.ndarray:
+    """The raw numbers of n rotations of reading ``sampler``, drawn from ``rng`` (module docstring,
+    "Draws"): (n, 4) normals for ``so3``, (n, 2) uniforms [yaw, elevation u] for ``upright``, (n, 3)
+    [yaw, u, roll] for ``sphere`` and ``floor``; :func:`rotations_from` turns them into matrices."""
+    check_sampler(sampler)
+    if sampler == "so3":
+        return rng.normal(size=(n, 4))
+    if sampler == "upright":
+        return np.column_stack([rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n)])
+    return np.column_stack([rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 1, n), rng.uniform(0, 2 * np.pi, n)])
+
+
+def rotations_from(sampler: str, raw: np.ndarray, elevation_deg: tuple[float, float] = (10.0, 50.0)) -> np.ndarray:
+    """Rotations (n, 3, 3) from :func:`draw_angles`' numbers ``raw``, row by row (so rows drawn from
+    several generators give each generator's rotations)."""
+    check_sampler(sampler)
+    if sampler == "so3":
+        q = raw / np.linalg.norm(raw, axis=1, keepdims=True)
+        return quaternion_to_matrix(q)
+    if sampler == "upright":
+        e_lo, e_hi = np.radians(elevation_deg)
+        return yaw_elevation_to_matrix(raw[:, 0], e_lo + (e_hi - e_lo) * raw[:, 1])
+    u = raw[:, 1]                                               # [0, 1)
+    sin_e = 2 * u - 1 if sampler == "sphere" else 1 - u       # [-1, 1) or (0, 1]
+    return yaw_elevation_roll_to_matrix(raw[:, 0], np.arcsin(sin_e), raw[:, 2])
+
+
 def sample_rotations(sampler: str, n: int, rng: np.random.Generator,
                      elevation_deg: tuple[float, float] = (10.0, 50.0)) -> np.ndarray:
     """n rotations (n, 3, 3) of reading ``sampler`` (module docstring), drawn from ``rng``;
     ``elevation_deg``: the ``upright`` sampler's elevation range, degrees."""
-    check_sampler(sampler)
-    if sampler == "so3":
-        return uniform_so3(n, rng)
-    if sampler == "upright":
-        e_lo, e_hi = np.radians(elevation_deg)
-        return yaw_elevation_to_matrix(rng.uniform(0, 2 * np.pi, n), rng.uniform(e_lo, e_hi, n))
-    yaw = rng.uniform(0, 2 * np.pi, n)
-    u = rng.uniform(0, 1, n)                                    # [0, 1)
-    sin_e = 2 * u - 1 if sampler == "sphere" else 1 - u       # [-1, 1) or (0, 1]
-    roll = rng.uniform(0, 2 * np.pi, n)
-    return yaw_elevation_roll_to_matrix(yaw, np.arcsin(sin_e), roll)
+    return rotations_from(sampler, draw_angles(sampler, n, rng), elevation_deg)
 
 
 @dataclass(frozen=True)
@@ -121,7 +139,18 @@ class ViewSampler:
 
     def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """n views -> rotations (n, 3, 3), translations (n, 3) in metres."""
-        R = sample_rotations(self.sampler, n, rng, self.elevation_deg)
+        raw, z, xy = self._draw(n, rng)
+        return rotations_from(self.sampler, raw, self.elevation_deg), np.column_stack([xy * z[:, None], z])
+
+    def sample_each(self, rngs) -> tuple[np.ndarray, np.ndarray]:
+        """One view from each generator of ``rngs``: the rows of ``sample(1, rng)`` for each, stacked, with
+        the arithmetic done once for all (a batch of streamed training views draws one generator per image)."""
+        draws = [self._draw(1, g) for g in rngs]
+        raw, z, xy = (np.concatenate(d) for d in zip(*draws))
+        return rotations_from(self.sampler, raw, self.elevation_deg), np.column_stack([xy * z[:, None], z])
+
+    def _draw(self, n: int, rng: np.random.Generator):
+        """The rotations' raw numbers, then the depths, then the offsets, in that order."""
+        raw = draw_angles(self.sampler, n, rng)
         z = rng.uniform(*self.distance, size=n)
-        xy = rng.uniform(-self.shift, self.shift, size=(n, 2)) * z[:, None]
-        return R, np.column_stack([xy, z])
+        return raw, z, rng.uniform(-self.shift, self.shift, size=(n, 2))

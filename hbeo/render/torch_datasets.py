@@ -347,12 +347,16 @@ class FreshPoses(TorchDataset):
         if b.subspace is not None and not self._ctx.prefilled:
             self._ctx.prefill_coeffs(b.records, COEFF_BLOCK)
 
-    def render_batch(self, indices, roll: bool = False) -> dict:
+    def render_batch(self, indices, roll: bool = False, roll_keys=None) -> dict:
         """Images ``indices`` of this epoch rendered together (render backend ``torch``): the items of
         :meth:`__getitem__` stacked, ``depth`` (B, 1, H, W) on the caster's device (:meth:`caster`), the
         rest on the CPU; the same images as :meth:`__getitem__` gives one by one. ``roll``: each camera
-        first turns about its optical axis by a uniform random angle from torch's global generator
-        (``rotation`` and ``translation`` turn with it): an exact rolled view, rendered, not resampled."""
+        first turns about its optical axis by a uniform random angle (``rotation`` and ``translation`` turn
+        with it): an exact rolled view, rendered, not resampled. The angle of image k comes from
+        :func:`roll_rng` of ``roll_keys[k]`` (an int: the image's position in the epoch's reading order,
+        which the training loader plans, :meth:`hbeo.model.trainingdata.ModelView.plan_reads`), so a batch
+        renders the same whichever chunk it is rendered in, and an object drawn twice in an epoch is rolled
+        twice; without keys, from torch's global generator."""
         b, n = self.base, len(self.base)
         s = b.settings
         if not self.renders_batches:
@@ -362,15 +366,20 @@ class FreshPoses(TorchDataset):
             raise IndexError(f"image {bad[0]} out of range for {len(self)} views per epoch")
         if self._ctx is None:
             self._ctx = ObjectViews(s, b.subspace)
-        pos, rngs, Rs, ts = [], [], [], []
+        pos, rngs = [], []
         for i in idx:
             j, p = divmod(i, n)
-            rng = object_rng(s.seed, b.split, p, self.epoch * self.passes + j)
-            R, t = s.view_sampler.sample(1, rng)
-            pos.append(p), rngs.append(rng), Rs.append(R[0]), ts.append(t[0])
-        R, t = np.stack(Rs), np.stack(ts)
+            pos.append(p), rngs.append(object_rng(s.seed, b.split, p, self.epoch * self.passes + j))
+        R, t = s.view_sampler.sample_each(rngs)           # each image's sample(1, rng), the arithmetic batched
         if roll:
-            Rz = z_angle_to_matrix(torch.rand(len(idx), dtype=torch.float64).numpy() * 2 * np.pi)
+            if roll_keys is None:
+                angles = torch.rand(len(idx), dtype=torch.float64).numpy() * 2 * np.pi
+            else:
+                if len(roll_keys) != len(idx):
+                    raise ValueError(f"render_batch: {len(roll_keys)} roll keys for {len(idx)} images")
+                angles = np.array([roll_rng(s.seed, b.split, self.epoch, int(k)).uniform(0, 2 * np.pi)
+                                   for k in roll_keys])
+            Rz = z_angle_to_matrix(angles)
             R, t = Rz @ R, (Rz @ t[:, :, None])[:, :, 0]
         caster = self.caster()
         depth = caster.render(torch.as_tensor(pos), R, t)
@@ -396,6 +405,16 @@ class FreshPoses(TorchDataset):
         if not self.renders_batches:
             return [self[i] for i in indices]
         return unstack(self.render_batch(indices))
+
+
+#: :func:`roll_rng`'s tag, which keeps its streams apart from :func:`hbeo.render.views.object_rng`'s
+ROLL_TAG = 0x701
+
+
+def roll_rng(seed: int, split: str, epoch: int, position: int) -> np.random.Generator:
+    """The random stream of the camera roll of the image read at ``position`` (in the epoch's reading
+    order, counted over the whole epoch: a data-parallel rank's share starts at its offset) of ``epoch``."""
+    return np.random.default_rng([int(seed), SPLIT_CODES[split], ROLL_TAG, int(epoch), int(position)])
 
 
 #: Objects projected onto the subspace together by :meth:`FreshPoses._prefill_coeffs`.

@@ -268,9 +268,7 @@ class ObjectViews:
         """Query views 0 .. ``views``-1 of one object for evaluation, each from its own stream
         (:func:`query_rng`: paired across methods and view counts); same arrays as :meth:`views`."""
         rngs = [query_rng(self.settings.seed, split, record, j) for j in range(views)]
-        poses = [self.settings.view_sampler.sample(1, g) for g in rngs]
-        R = np.concatenate([p[0] for p in poses])
-        t = np.concatenate([p[1] for p in poses])
+        R, t = self.settings.view_sampler.sample_each(rngs)
         return self._render(record, object_key(record), label, R, t, rngs)
 
     def _render(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list) -> dict:
