@@ -8,7 +8,7 @@ import torch
 from hbeo.errors import DataError
 from hbeo.model.fit import HBEONetTask
 from hbeo.model.network import LossWeights, NetConfig
-from hbeo.model.loop import TrainConfig, load_checkpoint, lr_at, train
+from hbeo.model.loop import TrainConfig, load_checkpoint, lr_at, train, training_history
 from hbeo.rotations import uniform_so3
 from hbeo.rundir import CHECKPOINT, TRAIN_LOG as LOG
 from resume_job import Blobs
@@ -119,3 +119,27 @@ def test_rotation_bins_head_learns_a_pose_and_resumes_exactly(tmp_path):
     assert log.val_pose_median_deg.iloc[-1] < 20 < log.val_pose_median_deg.iloc[0]   # chance ~126 degrees
     train(task, tr, va, tmp_path / "b", tc, stop_after_epoch=2)
     assert torch.equal(weights(full), weights(train(task, tr, va, tmp_path / "b", tc)))
+
+
+def test_training_steps_never_wait_to_read_a_loss(tmp_path, monkeypatch):
+    """hbeo's step reads nothing back from the device (no .item() of the loss or its parts: on a GPU each such
+    read makes the host wait; torch's own reads of host tensors, AdamW's step counts, are not ours); the
+    epoch's loss is read once, at its end, and the log keeps its value."""
+    import sys
+    from pathlib import Path
+    import hbeo
+    package = str(Path(hbeo.__file__).resolve().parent)
+    reads = []
+    real = torch.Tensor.item
+
+    def item(self):
+        caller = str(Path(sys._getframe(1).f_code.co_filename).resolve())
+        if caller.startswith(package):
+            reads.append(caller)
+        return real(self)
+    monkeypatch.setattr(torch.Tensor, "item", item)
+    tc = TrainConfig(epochs=1, batch_size=4, lr=1e-2, warmup_steps=2, progress=False)
+    train(HBEONetTask(CFG), Toy(32, 0), None, tmp_path, tc)          # 8 steps, no validation
+    assert reads == []
+    log = training_history(tmp_path)
+    assert len(log) == 1 and np.isfinite(log[0]["train_loss"]) and log[0]["train_loss"] > 0

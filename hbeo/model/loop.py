@@ -127,8 +127,8 @@ class ValidationMeans:
 
     def add(self, loss: torch.Tensor, parts: dict[str, float], logits: torch.Tensor, labels: torch.Tensor) -> None:
         m = len(labels)
-        for k, v in {"loss": loss.item(), **parts}.items():
-            self.sums[k] = self.sums.get(k, 0.0) + v * m
+        for k, v in {"loss": loss, **parts}.items():
+            self.sums[k] = self.sums.get(k, 0.0) + float(v) * m
         self.n += m
         hit = (logits.argmax(1) == labels).cpu().numpy()
         self.correct += int(hit.sum())
@@ -401,8 +401,11 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
         if rng is not None:               # after the loader exists, as in the run that wrote the checkpoint
             set_rng_state(rng)
             rng = None
-        done, seen, run_loss, elapsed = skip, *((in_epoch["seen"], in_epoch["loss_sum"], in_epoch["elapsed"])
+        done, seen, loss_sum, elapsed = skip, *((in_epoch["seen"], in_epoch["loss_sum"], in_epoch["elapsed"])
                                                 if in_epoch else (0, 0.0, 0.0))
+        # the epoch's summed loss stays on the device (float64, the same sums as on the host): reading a
+        # loss every step would make the host wait for the device at each one
+        run_loss = torch.tensor(loss_sum, dtype=torch.float64, device=device)
         in_epoch = None
         n_batches = len(loader) + (0 if isinstance(train_set, IterableDataset) else skip)
         bar = tqdm(batches, total=n_batches, initial=skip, disable=not (cfg.progress and w.main),
@@ -424,22 +427,23 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
             done += 1
             n = _batch_len(batch)
             seen += n
-            run_loss += loss.item() * n
-            bar.set_postfix({"loss": f"{loss.item():.3f}",
-                             f"{task.unit}_s": f"{seen / (time.perf_counter() - t0):.0f}"})
+            run_loss += loss.detach().double() * n
+            if not bar.disable:
+                bar.set_postfix({"loss": f"{loss.item():.3f}",
+                                 f"{task.unit}_s": f"{seen / (time.perf_counter() - t0):.0f}"})
             if stop_after_step is not None and step >= stop_after_step:
                 return module.eval()      # a kill: nothing written since the last checkpoint
             if step >= total_steps:
                 break
             if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and done < n_batches and w.main:
                 _checkpoint(ckpt_path, log_path, base, module, opt, scaler, epoch - 1, step, history,
-                            {"batches": done, "seen": seen, "loss_sum": run_loss,
+                            {"batches": done, "seen": seen, "loss_sum": float(run_loss),
                              "elapsed": time.perf_counter() - t0})
         elapsed = time.perf_counter() - t0
         if w.main:
             val = _validate(task, module, val_set, cfg, device) if val_set is not None else {}
             history.append(_plain({"epoch": epoch + 1, "step": step, "lr": lr_at(step, total_steps, cfg),
-                                   "train_loss": run_loss / max(seen, 1),
+                                   "train_loss": float(run_loss) / max(seen, 1),
                                    f"{task.unit}_per_s": seen * w.size / max(elapsed, 1e-9),
                                    **{f"val_{k}": v for k, v in val.items()}}))
             _checkpoint(ckpt_path, log_path, base, module, opt, scaler, epoch, step, history)

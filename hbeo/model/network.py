@@ -172,7 +172,8 @@ class LossWeights:
 def hbeo_loss(out: dict, batch: dict, cfg: NetConfig, w: LossWeights | None = None,
               coeff_scale: torch.Tensor | float = 1.0, grid: torch.Tensor | None = None,
               class_weights: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
-    """Total loss and its parts for one batch.
+    """Total loss and its parts for one batch; the parts are 0-d tensors, detached, left on the device
+    (reading one, ``float(part)``, waits for the device: the training loop never does).
 
     The pose term is the L2 norm of the difference between predicted and true pose encodings
     (axis-angle vectors, or 6-D vectors for the 6-D option), or for ``bins`` the cross-entropy
@@ -195,4 +196,4 @@ def hbeo_loss(out: dict, batch: dict, cfg: NetConfig, w: LossWeights | None = No
         pose = (out["pose"] - target).norm(dim=-1).mean()
     coeff = ((out["coeffs"] - batch["coeffs"]) / coeff_scale).norm(dim=-1).mean()
     total = w.classification * ce + w.pose * pose + w.coeffs * coeff
-    return total, {"ce": ce.item(), "pose": pose.item(), "coeff": coeff.item()}
+    return total, {"ce": ce.detach(), "pose": pose.detach(), "coeff": coeff.detach()}
