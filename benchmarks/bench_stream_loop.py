@@ -40,7 +40,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--run", help="run folder (default: a temporary one)")
     ap.add_argument("--render-ahead", type=int, nargs="*", default=[], metavar="N",
                     help="then one training of --steps steps per N: images rendered in one march (0: a batch; "
-                         "the default of the trainings above: 2048 on a GPU), e.g. --render-ahead 0 512 2048 8192")
+                         "the default of the trainings above: up to 2048 on a GPU), e.g. --render-ahead 0 512 2048 8192")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
     import torch

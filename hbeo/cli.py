@@ -290,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="worker processes that prepare batches while the network trains (default 0: none)")
     p.add_argument("--render-ahead", type=NONNEG, metavar="N",
                    help="--data stream --backend torch: images rendered in one march, served to the next batches "
-                        "(default: 2048 on a GPU, one batch on the CPU); the same images, faster on a GPU")
+                        "(default: up to 2048 on a GPU, as its free memory allows; one batch on the CPU); the same images")
     p.add_argument("--views", type=COUNT, help="rendered views per training object (default: the profile's)")
     p.add_argument("--data", choices=("memory", "shards", "stream"),
                    help="training images: the rendered set in memory, the rendered set read shard by shard, or "

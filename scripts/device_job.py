@@ -318,7 +318,7 @@ def main(argv=None) -> int:
     g.add_argument("--epochs", type=int)
     g.add_argument("--seed", type=int)
     g.add_argument("--render-ahead", type=int, metavar="N",
-                   help="stream/torch: images rendered in one march (default 2048 on a GPU)")
+                   help="stream/torch: images rendered in one march (default: up to 2048 on a GPU, as its free memory allows)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.budget is not None and not args.budget > 0:

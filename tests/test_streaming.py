@@ -312,3 +312,12 @@ def test_torch_stream_training_rendered_ahead_gives_the_same_weights(torch_strea
                           data={"source": "stream", "backend": "torch"})
         return train(task, d.train, d.val, out, cfg)
     assert weights_sha256(fit(tmp_path / "a", 0)) == weights_sha256(fit(tmp_path / "b", 24))
+
+
+def test_the_default_march_fits_the_devices_free_memory():
+    from hbeo.model.trainingdata import MARCH_BYTES_PER_RAY, RENDER_AHEAD, auto_render_ahead
+    assert auto_render_ahead(0, 80 * 60) == 0                                   # the CPU: a batch at a time
+    assert auto_render_ahead(140 * 2**30, 320 * 240) == RENDER_AHEAD            # an H200: the cap
+    small = auto_render_ahead(6 * 2**30, 320 * 240)                             # a 6 GiB card: what fits
+    assert 0 < small < RENDER_AHEAD and small * 320 * 240 * MARCH_BYTES_PER_RAY <= 6 * 2**30 / 4
+    assert auto_render_ahead(6 * 2**30, 80 * 60) == RENDER_AHEAD                # small images: the cap again

@@ -147,7 +147,7 @@ class TrainOptions:
     the run folder; max_steps: stop after that many optimizer steps (the schedule ends there);
     checkpoint_every: also checkpoint every that many steps; loader_workers: DataLoader worker processes
     (0: in this process); render_ahead: ``stream`` data with render backend ``torch``: images rendered in
-    one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: 2,048 on a GPU, a batch on the
+    one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: up to 2,048 on a GPU as its memory allows, a batch on the
     CPU); it changes the speed, not the images."""
 
     epochs: int | None = None

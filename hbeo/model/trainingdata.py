@@ -215,10 +215,13 @@ class ModelView(Dataset):
         whole reading order (:func:`hbeo.model.loop.data_loader`). A base that renders whole batches
         then (1) rolls the image read at position q by :func:`hbeo.render.torch_datasets.roll_rng` of q,
         so the images do not depend on how they are grouped, and (2) renders :attr:`ahead` images of the
-        plan in one march (``None``: :data:`RENDER_AHEAD` on a CUDA device, none on the CPU, where a
-        larger march is no faster) and serves the next batches from them: the ray-marcher's step costs
-        about the same for 64 images as for 2,048 on a GPU (a lease's calibration: 79 ms a step of 64
-        at 80x60, ``docs/history/gpu-cpu-stream``). Reads outside the plan render alone, as before."""
+        plan in one march (``None``: :func:`auto_render_ahead` of the device's free memory, chosen at the
+        first march; none on the CPU, where a larger march is no faster) and serves the next batches
+        from them. On a GPU a march is mostly a fixed cost of launches and host syncs: a streamed step
+        of 64 images at 80x60 took 79 ms on an H200, one of 128 at 320x240 191 ms
+        (``docs/history/*/lease-2026-11-27``), and the marcher alone rendered 404 images/s in batches of
+        32 and 2,722 in batches of 2,048 at 320x240 (lease-2026-11-26b). Reads outside the plan render
+        alone, as before."""
         self._plan, self._start = np.asarray(order, np.int64), int(start)
         self._cursor, self._chunk = 0, None
 
@@ -236,11 +239,12 @@ class ModelView(Dataset):
         return None
 
     def _ahead(self, n: int) -> int:
-        if self.ahead is not None:
-            a = int(self.ahead)
-        else:
-            a = RENDER_AHEAD if self.base.caster().device.type == "cuda" else 0
-        return -(-max(a, n) // n) * n             # whole batches
+        if self.ahead is None:
+            caster = self.base.caster()
+            dev = caster.device
+            free = torch.cuda.mem_get_info(dev)[0] if dev.type == "cuda" else 0
+            self.ahead = auto_render_ahead(free, caster.intrinsics.height * caster.intrinsics.width)
+        return -(-max(int(self.ahead), n) // n) * n             # whole batches
 
     def _rendered(self, idx: list[int]) -> dict:
         """The model batch of ``idx`` (:func:`model_batch` of :meth:`FreshPoses.render_batch`)."""
@@ -284,9 +288,19 @@ class ModelView(Dataset):
         return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
 
 
-#: :meth:`ModelView.plan_reads`: images rendered in one march on a CUDA device (the ray-marcher reached
-#: 2,722 images/s at 320x240 in batches of 2,048 on an H200, 1,028 in batches of 128: lease-2026-11-26b)
+#: :meth:`ModelView.plan_reads`: at most this many images rendered in one march on a CUDA device (the
+#: ray-marcher reached 2,722 images/s at 320x240 in batches of 2,048 on an H200, 1,028 in batches of 128:
+#: lease-2026-11-26b)
 RENDER_AHEAD = 2048
+#: peak bytes a ray of a march holds (its state and temporaries; measured on the CPU, 2026-11-27: 101 at
+#: 1,024 images of 80x60, 128 at 4,096)
+MARCH_BYTES_PER_RAY = 128
+
+
+def auto_render_ahead(free_bytes: int, pixels: int) -> int:
+    """Images to render in one march on a device with ``free_bytes`` free, of ``pixels`` rays each: at most
+    :data:`RENDER_AHEAD`, and a march within a quarter of the free memory (0: a batch at a time)."""
+    return int(min(RENDER_AHEAD, max(0, int(free_bytes)) // (4 * MARCH_BYTES_PER_RAY * max(1, int(pixels)))))
 
 #: :class:`ModelViewStream` keeps a pass's items for the next one up to this many depth pixels (4 bytes each)
 STREAM_CACHE_PIXELS = 2**28
