@@ -171,7 +171,7 @@ class LossWeights:
 
 def hbeo_loss(out: dict, batch: dict, cfg: NetConfig, w: LossWeights | None = None,
               coeff_scale: torch.Tensor | float = 1.0, grid: torch.Tensor | None = None,
-              class_weights: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+              class_weights: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Total loss and its parts for one batch; the parts are 0-d tensors, detached, left on the device
     (reading one, ``float(part)``, waits for the device: the training loop never does).
 

@@ -302,6 +302,7 @@ def auto_render_ahead(free_bytes: int, pixels: int) -> int:
     :data:`RENDER_AHEAD`, and a march within a quarter of the free memory (0: a batch at a time)."""
     return int(min(RENDER_AHEAD, max(0, int(free_bytes)) // (4 * MARCH_BYTES_PER_RAY * max(1, int(pixels)))))
 
+
 #: :class:`ModelViewStream` keeps a pass's items for the next one up to this many depth pixels (4 bytes each)
 STREAM_CACHE_PIXELS = 2**28
 
