@@ -112,6 +112,14 @@ if $PY -c "import json, sys; sys.exit(json.load(open('$R/eval_val-stream.json'))
   $PY -m hbeo evaluate --model $R/model_stream.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
       --out $R/eval_test-stream-rolls4.json
 fi
+# 4h. (issue 29 item 4) the 3-D CNN baseline trained again with training seeds 0, 1, 2 in a work folder (the run's
+#     rendered training set made again there), each scored on the same test views; its model-table row
+#     (2026-11-27, ~5 min a seed on that day's VM)
+$PY scripts/voxcnn_seeds.py "${WORK:-/tmp/hbeo-voxcnn-seeds}" --seeds 0 1 2
+for s in 0 1 2; do
+  cp "${WORK:-/tmp/hbeo-voxcnn-seeds}/eval_test-voxcnn-s$s.json" $R/
+  mkdir -p $R/train_voxcnn-s$s && cp "${WORK:-/tmp/hbeo-voxcnn-seeds}/train_voxcnn-s$s/train_log.csv" $R/train_voxcnn-s$s/
+done
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'

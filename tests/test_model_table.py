@@ -122,6 +122,23 @@ def test_seeds_spread_is_the_class_mean_over_every_seed(tmp_path):
     assert _cells(lines[3])[3] == "–"
 
 
+def test_a_baseline_row_shows_its_test_figures_and_seeds_without_a_validation_file(tmp_path):
+    """Another method's row (``baseline``): no validation file (it holds out its own objects), its test figures and
+    their spread over training seeds; a model row without a validation file stays refused."""
+    cnn = {f"c{i}.json": _metrics("test", p, method="voxcnn", rolls=None) for i, p in enumerate((HBEO, ONE_Y_WRONG, ALL_X))}
+    rows = _run(tmp_path, files=cnn)
+    rows.append({"label": "CNN", "val": None, "test": "c0.json", "chosen": False, "baseline": True,
+                 "test_seeds": ["c1.json", "c2.json"]})
+    RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
+    cnn = _cells(model_table(tmp_path).splitlines()[-1])
+    assert cnn[:2] == ["CNN", "baseline"] and cnn[2].startswith("– / 62.5 % [") and cnn[3] == "– / 62.5 ± 12.5 % (3)"
+    assert cnn[-1] == "– / 6"
+    del rows[-1]["baseline"]
+    RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
+    with pytest.raises(DataError, match="'CNN' has no validation metrics file"):
+        model_table(tmp_path)
+
+
 @pytest.mark.parametrize("change,why", [
     ({"views": 1}, "views 1, not 2"),
     ({"seed": 3}, "seed 3, not 0"),

@@ -4,12 +4,15 @@ A run folder's ``models.json`` (:attr:`hbeo.rundir.RunDir.model_rows`) lists the
 
     [{"label": "...", "val": "eval_val_x.json", "test": "eval_test_x.json" or null,
       "chosen": true | false, "note": "...", "target_role": "hbeo" | "hbeo+verify" | "beo-known",
-      "val_seeds": ["eval_val_x-s1.json", ...], "test_seeds": ["eval_test_x-s1.json", ...]}, ...]
+      "val_seeds": ["eval_val_x-s1.json", ...], "test_seeds": ["eval_test_x-s1.json", ...],
+      "baseline": true | absent}, ...]
 
 Each names metrics files (``python -m hbeo evaluate`` output) of the same folder or, for models the run
 no longer holds (earlier configurations, ablations), of its history folder (:attr:`hbeo.rundir.RunDir.history`,
 ``docs/history/<run>/``). Configurations are compared on the validation objects; only rows marked ``chosen``
 (picked there) or the reference run's own model have a test column, each evaluated on the test split once.
+A ``baseline`` row (another method, shown for its spread over training seeds beside HBEO's) may have a test file
+and no validation file: a baseline that trains holds out its own objects, not HBEO's validation split.
 
 Columns (:func:`model_table`), each ``validation / test``: the class-mean accuracy first (the mean of the
 per-class accuracies: the paper's headline; the training split is 9:1 between classes, the test split nearly
@@ -208,17 +211,18 @@ def model_table(run) -> str:
         if r.get("target_role") == REFERENCE:          # a baseline for the targets table, not a model row
             continue
         val, test = _load(run, r.get("val"), "val"), _load(run, r.get("test"), "test")
-        if val is None:
+        if val is None and not (r.get("baseline") and test is not None):
             raise DataError(run.model_rows, f"row {r.get('label')!r} has no validation metrics file")
-        a = _figures(val)
-        b = _figures(test, ci=True) if test is not None else ["–"] * len(a)
+        b = _figures(test, ci=True) if test is not None else None
+        a = _figures(val) if val is not None else ["–"] * len(b)
+        b = b or ["–"] * len(a)
         sv, st = seed_runs(run, r, "val"), seed_runs(run, r, "test")
         seeds = "–" if sv is None and st is None else f"{seeds_cell(sv)} / {seeds_cell(st)}"
-        n = f"{val['n_queries']} / {test['n_queries'] if test else '–'}"
+        n = f"{val['n_queries'] if val else '–'} / {test['n_queries'] if test else '–'}"
         label = r["label"] + (f" ({r['note']})" if r.get("note") else "")
         cells = [f"{x} / {y}" for x, y in zip(a, b)]
-        lines.append("| " + " | ".join([label, "yes" if r.get("chosen") else "no", cells[0], seeds] + cells[1:] +
-                                        [n]) + " |")
+        chosen = "baseline" if r.get("baseline") else "yes" if r.get("chosen") else "no"
+        lines.append("| " + " | ".join([label, chosen, cells[0], seeds] + cells[1:] + [n]) + " |")
     return "\n".join(lines) + "\n"
 
 

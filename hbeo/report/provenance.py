@@ -54,7 +54,9 @@ def versions() -> dict:
 
 
 def hardware() -> dict:
-    """CPU model, cores, memory (GiB) and GPU of this machine, and torch's thread count."""
+    """CPU model, cores, memory (GiB) and GPU of this machine, torch's thread count and the CPU kernels torch
+    dispatches to (``cpu_capability``, e.g. ``AVX2`` or ``AVX512``: two machines that differ there train the same
+    seed to slightly different weights, while inference reproduces; README "Determinism")."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -74,10 +76,11 @@ def hardware() -> dict:
         if torch.cuda.is_available():
             gpu = torch.cuda.get_device_name(0)
         threads = torch.get_num_threads()
+        capability = torch.backends.cpu.get_cpu_capability()
     except Exception:   # noqa: BLE001 (torch missing or broken: provenance must still be written)
-        threads = None
+        threads = capability = None
     return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": mem, "gpu": gpu, "torch_threads": threads,
-            "platform": platform.platform()}
+            "cpu_capability": capability, "platform": platform.platform()}
 
 
 def git_state() -> dict:
