@@ -76,9 +76,12 @@ def hardware() -> dict:
         if torch.cuda.is_available():
             gpu = torch.cuda.get_device_name(0)
         threads = torch.get_num_threads()
-        capability = torch.backends.cpu.get_cpu_capability()
     except Exception:   # noqa: BLE001 (torch missing or broken: provenance must still be written)
-        threads = capability = None
+        threads = None
+    try:
+        capability = torch.backends.cpu.get_cpu_capability()
+    except Exception:   # noqa: BLE001 (an older torch without it, or none)
+        capability = None
     return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": mem, "gpu": gpu, "torch_threads": threads,
             "cpu_capability": capability, "platform": platform.platform()}
 
