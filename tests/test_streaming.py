@@ -321,3 +321,17 @@ def test_the_default_march_fits_the_devices_free_memory():
     small = auto_render_ahead(6 * 2**30, 320 * 240)                             # a 6 GiB card: what fits
     assert 0 < small < RENDER_AHEAD and small * 320 * 240 * MARCH_BYTES_PER_RAY <= 6 * 2**30 / 4
     assert auto_render_ahead(6 * 2**30, 80 * 60) == RENDER_AHEAD                # small images: the cap again
+
+
+def test_torch_stream_rolls_are_the_same_with_loader_workers(torch_stream):
+    """Workers read batches out of the plan's turn; each finds its place in the plan, so its rolls (and images)
+    are those the main process draws: the loader's batches are equal with 0 and 2 workers."""
+    _, data = torch_stream
+    cfg = TrainConfig(epochs=1, batch_size=4, seed=0, progress=False, device="cpu")
+    batches = {}
+    for workers in (0, 2):
+        d = data(roll=True)
+        batches[workers] = list(data_loader(d.train, replace(cfg, num_workers=workers), epoch=1))
+    assert len(batches[0]) == len(batches[2]) > 2
+    for a, b in zip(batches[0], batches[2]):
+        assert torch.equal(a["depth"], b["depth"]) and torch.equal(a["rotation"], b["rotation"])
