@@ -7,8 +7,10 @@ reference model's camera), the seed's file made the folder's ``voxcnn.hbeo`` for
     python scripts/voxcnn_seeds.py WORK [--seeds 0 1 2] [--model results/cpu-modelnet10-vox30/model.hbeo]
 
 writes ``WORK/eval_test-voxcnn-sS.json`` for each seed (the training logs in ``WORK/train_voxcnn-sS/``). Seed 0
-repeats the reference run's own VoxCNN (``eval_voxcnn_known.json``): a check that the folder's set-up is the
-reference's. About 10 minutes a seed on 2 cores. A seed already trained is not trained again.
+repeats the reference run's own VoxCNN (``eval_voxcnn_known.json``) only on a machine whose torch dispatches to
+the same CPU kernels: on another it trains to slightly different weights (README, "Determinism": 112 of 2,721
+answers differed, 2026-11-27). About 4–5 minutes a seed on that day's 2-core VM. A seed already trained is not
+trained again.
 """
 from __future__ import annotations
 

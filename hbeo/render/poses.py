@@ -139,18 +139,19 @@ class ViewSampler:
 
     def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """n views -> rotations (n, 3, 3), translations (n, 3) in metres."""
-        raw, z, xy = self._draw(n, rng)
-        return rotations_from(self.sampler, raw, self.elevation_deg), np.column_stack([xy * z[:, None], z])
+        return self._views(*self._draw(n, rng))
 
     def sample_each(self, rngs) -> tuple[np.ndarray, np.ndarray]:
         """One view from each generator of ``rngs``: the rows of ``sample(1, rng)`` for each, stacked, with
         the arithmetic done once for all (a batch of streamed training views draws one generator per image)."""
-        draws = [self._draw(1, g) for g in rngs]
-        raw, z, xy = (np.concatenate(d) for d in zip(*draws))
-        return rotations_from(self.sampler, raw, self.elevation_deg), np.column_stack([xy * z[:, None], z])
+        return self._views(*(np.concatenate(d) for d in zip(*(self._draw(1, g) for g in rngs))))
 
     def _draw(self, n: int, rng: np.random.Generator):
         """The rotations' raw numbers, then the depths, then the offsets, in that order."""
         raw = draw_angles(self.sampler, n, rng)
         z = rng.uniform(*self.distance, size=n)
         return raw, z, rng.uniform(-self.shift, self.shift, size=(n, 2))
+
+    def _views(self, raw, z, xy) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_draw`'s numbers (rows of one generator or of several) -> rotations, translations (metres)."""
+        return rotations_from(self.sampler, raw, self.elevation_deg), np.column_stack([xy * z[:, None], z])
