@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Keep the committed model files from travelling to a lent GPU machine, whose tool sends the whole working tree
 # (tracked files and untracked ones git does not ignore) and refuses more than 64 MiB; the reference runs' model
-# files (results/*/model.hbeo) are most of the tree, and the device job needs none of them.
+# files (results/*/model.hbeo) and executed notebooks (results/*/*.ipynb, figures inline) are most of the tree,
+# and the device job needs none of them.
 #     bash scripts/device_tree.sh slim       before the device call: untrack them in the index, move them into
 #                                            .device-aside/ (ignored in .git/info/exclude; a file that .gitignore
 #                                            un-ignores, as results/cpu-procedural/model.hbeo, would travel if only
@@ -21,7 +22,7 @@ case "${1:-}" in
     if grep -qF "$MARK" "$EXCLUDE" 2>/dev/null; then
       echo "error: already slim (run: bash scripts/device_tree.sh restore)" >&2; exit 2
     fi
-    mapfile -t files < <(git ls-files -- 'results/*/model.hbeo')
+    mapfile -t files < <(git ls-files -- 'results/*/model.hbeo' 'results/*/*.ipynb')
     [ ${#files[@]} -gt 0 ] || { echo "nothing to leave behind"; exit 0; }
     git rm -q --cached -- "${files[@]}"
     mkdir -p "$(dirname "$EXCLUDE")"

@@ -128,14 +128,15 @@ def test_device_job_refuses_bad_training_flags(tmp_path):
         assert r.returncode == 2 and word in r.stderr, (flags, r.stderr)
 
 
-def test_device_tree_slim_leaves_the_model_files_behind_and_restore_tracks_them_again(tmp_path):
+def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_and_restore_tracks_them_again(tmp_path):
     import shutil
     repo = tmp_path / "repo"
     (repo / "scripts").mkdir(parents=True)
     shutil.copy(ROOT / "scripts" / "device_tree.sh", repo / "scripts")
     # results/b/model.hbeo un-ignored by .gitignore, as results/cpu-procedural/model.hbeo: an exclude line alone
     # would not keep it from travelling
-    for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "hbeo/x.py", ".gitignore"):
+    for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "results/a/01_x.ipynb",
+              "notebooks/01_x.ipynb", "hbeo/x.py", ".gitignore"):
         (repo / f).parent.mkdir(parents=True, exist_ok=True)
         (repo / f).write_text("results/b/*.hbeo\n!results/b/model.hbeo\n" if f == ".gitignore" else f)
     git = lambda *a: subprocess.run(["git", "-C", str(repo), *a], capture_output=True, text=True, check=True).stdout
@@ -146,7 +147,7 @@ def test_device_tree_slim_leaves_the_model_files_behind_and_restore_tracks_them_
     travels = lambda: set(git("ls-files").split()) | set(git("ls-files", "-o", "--exclude-standard").split())
     before = travels()
     assert run("slim").returncode == 0
-    assert travels() == before - {"results/a/model.hbeo", "results/b/model.hbeo"}
+    assert travels() == before - {"results/a/model.hbeo", "results/b/model.hbeo", "results/a/01_x.ipynb"}
     assert (repo / ".device-aside/results/a/model.hbeo").read_text() == "results/a/model.hbeo"   # kept aside
     assert run("slim").returncode == 2                              # twice: refused
     assert run("restore").returncode == 0
