@@ -15,7 +15,9 @@ before the clock is read:
 - ``render``: :meth:`hbeo.render.gridcast.GridCaster.render` of a batch at random objects and poses (the torch
   backend's stream renders a training batch this way);
 - ``network``: forward, a stand-in loss (the mean square of every output), backward and an AdamW step of
-  HBEONet on a batch of random depth, channels-last, with AMP and a GradScaler on CUDA (the loop's settings);
+  HBEONet on a batch of random depth, channels-last, with AMP and a GradScaler on CUDA (the loop's settings;
+  the loop's optimizer, :func:`hbeo.model.loop.optimizer`: fused on CUDA since 2026-11-27, the figures of the
+  leases before then were taken with torch's default AdamW);
 - ``both``: the two in sequence on the same batch, what a streamed step costs less the data path and the
   real loss's parts.
 
@@ -51,7 +53,7 @@ def timed(fn, device, seconds: float, batch: int) -> float:
 
 def main() -> None:
     from hbeo import config
-    from hbeo.model.loop import pick_device
+    from hbeo.model.loop import TrainConfig, optimizer, pick_device
     from hbeo.model.network import HBEONet, NetConfig
     from hbeo.render.gridcast import GridCaster
     from hbeo.render.views import RenderSettings
@@ -73,7 +75,7 @@ def main() -> None:
     cfg = NetConfig(image_size=tuple(settings.image_size), conv_channels=tuple(prof.network.conv_channels),
                     fc=tuple(prof.network.fc), kernel=prof.network.kernel, rotation=prof.recipe.rotation)
     net = HBEONet(cfg).to(device).to(memory_format=torch.channels_last).train()
-    opt = torch.optim.AdamW(net.parameters(), lr=1e-4)
+    opt = optimizer(net.parameters(), TrainConfig(lr=1e-4), device)      # the loop's (fused on CUDA)
     amp = device.type == "cuda"
     scaler = torch.amp.GradScaler("cuda", enabled=amp)
 

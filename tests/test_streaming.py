@@ -191,6 +191,24 @@ def test_torch_stream_batches_are_the_images_rendered_one_by_one(torch_stream):
     assert set(items[0]) == {"depth", "label", "rotation", "axis_angle", "coeffs", "object_index"}
 
 
+def test_torch_stream_loader_batches_come_stacked_as_the_default_collation_would_build_them(torch_stream):
+    """The training loader passes a batch rendered together on as it is (hbeo.batches.Stacked), every tensor
+    where its depth is: the same values, shapes and dtypes as torch's default collation of its items."""
+    from torch.utils.data import default_collate
+    _, data = torch_stream
+    d = data(roll=True)
+    cfg = TrainConfig(batch_size=4, seed=3)
+    batch = next(iter(data_loader(d.train, cfg, 0)))
+    order = d.train.epoch_sampler(cfg.seed, 0)
+    again = data(roll=True).train
+    again.plan_reads(order)
+    theirs = default_collate(list(again.__getitems__(order[:4].tolist())))
+    assert set(batch) == set(theirs) == {"depth", "label", "rotation", "axis_angle", "coeffs", "object_index"}
+    for k, v in theirs.items():
+        assert batch[k].dtype == v.dtype and torch.equal(batch[k], v), k
+        assert batch[k].device == batch["depth"].device
+
+
 def test_stream_validation_renders_once_and_gives_the_same_items_again(torch_stream, monkeypatch):
     from hbeo.model import trainingdata
     _, data = torch_stream

@@ -4,6 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from torch import nn
 
 from hbeo.errors import DataError
 from hbeo.model.fit import HBEONetTask
@@ -143,3 +144,36 @@ def test_training_steps_never_wait_to_read_a_loss(tmp_path, monkeypatch):
     assert reads == []
     log = training_history(tmp_path)
     assert len(log) == 1 and np.isfinite(log[0]["train_loss"]) and log[0]["train_loss"] > 0
+
+
+def test_the_loops_optimizer_on_cuda_is_fused_so_the_amp_scaler_steps_without_reading_back(monkeypatch):
+    """On CUDA the loop's AdamW is fused; with it the AMP gradient scaler's step (after ``unscale_`` and the
+    gradient clipping, as the loop does) hands the inf/NaN flag to the optimizer on the device instead of
+    reading it back, a host wait every step with torch's default AdamW. Checked here with the CPU's scaler
+    (the same ``GradScaler.step`` code): the default optimizer reads back, the fused one does not; on the
+    CPU the loop keeps torch's default, so the CPU's trainings are unchanged."""
+    from hbeo.model.loop import optimizer
+    cfg = TrainConfig(lr=1e-3)
+    assert optimizer(nn.Linear(2, 2).parameters(), cfg, torch.device("cuda")).defaults["fused"] is True
+    assert not optimizer(nn.Linear(2, 2).parameters(), cfg, torch.device("cpu")).defaults["fused"]
+    reads, real = [], torch.Tensor.item
+    monkeypatch.setattr(torch.Tensor, "item", lambda self: reads.append(1) or real(self))
+
+    def steps(device_kind):
+        torch.manual_seed(0)
+        net = nn.Linear(5, 3)
+        opt, scaler = optimizer(net.parameters(), cfg, torch.device(device_kind)), torch.amp.GradScaler("cpu")
+        reads.clear()
+        for _ in range(3):
+            loss = net(torch.randn(4, 5)).pow(2).mean()
+            opt.zero_grad(set_to_none=True)
+            scaler.scale(loss).backward()
+            scaler.unscale_(opt)
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            scaler.step(opt)
+            scaler.update()
+        return len(reads), net.weight.detach().clone()
+    n_default, w_default = steps("cpu")
+    n_fused, w_fused = steps("cuda")                 # the CUDA choice, made on CPU tensors
+    assert n_default > 0 and n_fused == 0
+    torch.testing.assert_close(w_fused, w_default)   # the same update, to rounding

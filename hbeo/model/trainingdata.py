@@ -25,6 +25,7 @@ import torch
 from torch.utils.data import Dataset, IterableDataset, Subset
 from tqdm.auto import tqdm
 
+from hbeo.batches import Stacked
 from hbeo.errors import DataError
 from hbeo.limits import check_in_memory
 from hbeo.data import datasets
@@ -34,7 +35,7 @@ from hbeo.model import modelfile
 from hbeo.model.augment import RollAugment, roll_item
 from hbeo.model.preprocess import to_model_view
 from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
-                                        split_objects, unstack)
+                                        split_objects)
 from hbeo.render.renderset import Manifest
 from hbeo.render.views import RenderSettings
 from hbeo.rotations import matrix_to_axis_angle
@@ -103,7 +104,7 @@ class ClassBalanced(Dataset):
     def __getitem__(self, i):
         return self.base[i]
 
-    def __getitems__(self, indices) -> list[dict]:
+    def __getitems__(self, indices):
         if getattr(self.base, "__getitems__", None):
             return self.base.__getitems__(indices)
         return [self.base[i] for i in indices]
@@ -251,16 +252,24 @@ class ModelView(Dataset):
         at = self._planned_at(np.asarray(idx, np.int64))
         if at is None:
             raw = self.base.render_batch(idx, roll=self.roll)
-            return model_batch(raw, self.K, self.opts, self.coeff_mean, self.coeff_std)
+            return self._on_device(model_batch(raw, self.K, self.opts, self.coeff_mean, self.coeff_std))
         n, ch = len(idx), self._chunk
         if ch is None or not ch[0] <= at or at + n > ch[0] + ch[1]:
             chunk = self._plan[at:at + self._ahead(n)]
             keys = self._start + at + np.arange(len(chunk)) if self.roll else None
             raw = self.base.render_batch(chunk.tolist(), roll=self.roll, roll_keys=keys)
-            ch = self._chunk = (at, len(chunk), model_batch(raw, self.K, self.opts, self.coeff_mean, self.coeff_std))
+            ch = self._chunk = (at, len(chunk), self._on_device(model_batch(raw, self.K, self.opts, self.coeff_mean,
+                                                                            self.coeff_std)))
         self._cursor = at + n
         a = at - ch[0]
         return {k: v[a:a + n] for k, v in ch[2].items()}
+
+    @staticmethod
+    def _on_device(batch: dict) -> dict:
+        """A rendered batch with every tensor where its depth is (the training device): copied once a march,
+        not a few small host-to-device copies every step."""
+        dev = batch["depth"].device
+        return {k: v.to(dev) for k, v in batch.items()}
 
     def __len__(self):
         return len(self.base)
@@ -271,10 +280,12 @@ class ModelView(Dataset):
         item = model_item(self.base[i], self.K, self.opts, self.coeff_mean, self.coeff_std)
         return roll_item(item, self.K) if self.roll else item
 
-    def __getitems__(self, indices) -> list[dict]:
+    def __getitems__(self, indices):
+        """The items ``indices``: read one by one, or, from a base that renders whole batches, rendered
+        together and kept stacked (:class:`hbeo.batches.Stacked`, which the loader's collation passes on)."""
         if not getattr(self.base, "renders_batches", False):
             return [self[i] for i in indices]
-        return unstack(self._rendered([int(i) for i in indices]))
+        return Stacked(self._rendered([int(i) for i in indices]))
 
     def set_epoch(self, epoch: int) -> None:
         if hasattr(self.base, "set_epoch"):

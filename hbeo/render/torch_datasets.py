@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset as TorchDataset, IterableDataset, Sampler, get_worker_info
 
+from hbeo.batches import Stacked
 from hbeo.data.datasets import split_objects
 from hbeo.errors import DataError
 from hbeo.render.renderset import SHARD_KEYS, Manifest
@@ -399,12 +400,13 @@ class FreshPoses(TorchDataset):
             out["coeffs"] = torch.from_numpy(np.stack([self._ctx.coeffs(b.records[p]) for p in pos]))
         return out
 
-    def __getitems__(self, indices) -> list[dict]:
+    def __getitems__(self, indices):
         """The items ``indices`` (what a DataLoader fetches for a batch): rendered together with the
-        ``torch`` backend (:meth:`render_batch`), one by one otherwise."""
+        ``torch`` backend (:meth:`render_batch`, kept stacked: :class:`hbeo.batches.Stacked`), one by one
+        otherwise."""
         if not self.renders_batches:
             return [self[i] for i in indices]
-        return unstack(self.render_batch(indices))
+        return Stacked(self.render_batch(indices))
 
 
 #: :func:`roll_rng`'s tag, which keeps its streams apart from :func:`hbeo.render.views.object_rng`'s
@@ -446,10 +448,3 @@ def shared_caster(grids: list, settings: RenderSettings, device) -> "GridCaster"
     while len(_CASTERS) > SHARED_CASTERS:
         _CASTERS.popitem(last=False)
     return caster
-
-
-def unstack(batch: dict) -> list[dict]:
-    """A batch (dict of tensors with a leading batch dimension) -> its items (views, no copies), which a
-    DataLoader's collation stacks back."""
-    n = len(next(iter(batch.values())))
-    return [{k: v[i] for k, v in batch.items()} for i in range(n)]
