@@ -224,8 +224,36 @@ def test_stream_validation_renders_once_and_gives_the_same_items_again(torch_str
     assert list(val) == [] and calls
     monkeypatch.undo()                                       # the base renders again
     monkeypatch.setattr(trainingdata, "STREAM_CACHE_PIXELS", 1)     # a pass too large to keep
+    monkeypatch.setattr(trainingdata, "_SHARED_PASSES", {})         # (nor kept from an earlier training)
     fresh = data().val
-    assert len(list(fresh)) == len(first) and fresh._kept is None
+    assert len(list(fresh)) == len(first) and fresh._kept is None and not trainingdata._SHARED_PASSES
+
+
+def test_stream_validation_pass_serves_the_next_training_of_the_process_with_the_same_views(torch_stream,
+                                                                                              monkeypatch):
+    """A device job trains three times over the same validation objects: the second training's validation
+    takes the first's kept pass (the same items) instead of rendering it again; other views (another render
+    seed) and a rolled validation set do not share."""
+    from hbeo.model import trainingdata
+    monkeypatch.setattr(trainingdata, "_SHARED_PASSES", {})
+    _, data = torch_stream
+    first = list(data().val)
+    calls = []
+    real = type(data().val.base).__iter__
+    monkeypatch.setattr(type(data().val.base), "__iter__", lambda self: calls.append(1) or real(self))
+    second = data().val                                      # another training's data, built anew
+    items = list(second)
+    assert not calls and len(items) == len(first) > 0
+    assert all(torch.equal(a["depth"], b["depth"]) and torch.equal(a["coeffs"], b["coeffs"])
+               and a["label"] == b["label"] for a, b in zip(first, items))
+    other = data(seed=7).val                                 # other views: rendered, and they differ
+    assert other._kept is None and len(list(other)) == len(first) and calls
+    assert not all(torch.equal(a["depth"], b["depth"]) for a, b in zip(first, other))
+    assert data(seed=7).val._kept is not None                # ... and now kept in their place (the last only)
+    assert data().val._kept is None and len(trainingdata._SHARED_PASSES) == 1
+    v = data(seed=7).val
+    rolled = trainingdata.ModelViewStream(v.base, v.K, v.opts, v.coeff_mean, v.coeff_std, roll=True, share=v.share)
+    assert rolled.share is None and rolled._kept is None
 
 
 def test_torch_stream_roll_turns_pose_and_image_together(torch_stream):

@@ -18,11 +18,13 @@ May import: foundation, data, subspace, render, and the hbeo.model modules below
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset, IterableDataset, Subset
+from torch.utils.data import Dataset, IterableDataset, Subset, get_worker_info
 from tqdm.auto import tqdm
 
 from hbeo.batches import Stacked
@@ -318,17 +320,30 @@ def auto_render_ahead(free_bytes: int, pixels: int) -> int:
 STREAM_CACHE_PIXELS = 2**28
 
 
+#: passes of :class:`ModelViewStream` kept for other trainings of this process, by their ``share`` key (the
+#: last one only)
+_SHARED_PASSES: dict = {}
+
+
 class ModelViewStream(IterableDataset):
     """:class:`ModelView` for an iterable view dataset (validation views rendered on the fly, in order).
     Without ``roll``, a pass that ran to its end is kept (up to :data:`STREAM_CACHE_PIXELS` depth pixels)
     and the next pass of the same epoch yields it again instead of rendering the same images: validation
     scores the same views after every training epoch, and rendering them one object at a time cost the
-    streamed training most of its time outside the loop (the second GPU lease)."""
+    streamed training most of its time outside the loop (the second GPU lease). With a ``share`` key (any
+    hashable naming everything the items depend on: :func:`training_data` gives one) the kept pass also
+    serves a later ModelViewStream of this process with the same key: a device job trains three times over
+    the same validation objects (warm-up, calibration, the run), and rendering them one object at a time
+    cost ~30 s of the lease each time (``docs/history/gpu-cpu-stream/lease-2026-11-27b``: 31 s of each
+    training outside its loop)."""
 
-    def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False):
+    def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False, share=None):
         self.base, self.K, self.opts, self.roll = base, K, opts, roll
         self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
+        self.share = None if roll else share
         self._kept: tuple[int, list] | None = None          # (the base's epoch, the items of a whole pass)
+        if self.share is not None and self.share in _SHARED_PASSES:
+            self._kept = _SHARED_PASSES[self.share]
 
     def set_epoch(self, epoch: int) -> None:
         self.base.set_epoch(epoch)
@@ -354,6 +369,9 @@ class ModelViewStream(IterableDataset):
             yield item
         if keep is not None:
             self._kept = (epoch, keep)
+            if self.share is not None and get_worker_info() is None:
+                _SHARED_PASSES.clear()
+                _SHARED_PASSES[self.share] = self._kept
 
     def __getstate__(self):          # DataLoader workers start without the kept pass
         return {**self.__dict__, "_kept": None}
@@ -479,7 +497,11 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
         obj_labels = np.array([lab for lab, v in zip(labels, val) if not v], np.int64)    # image i: object i % n
         val_views = StreamingDepth(ds, [r for r, v in zip(records, val) if v], "train",
                                    replace(settings, views_per_object=prof.data.stream_val_views), sub, shuffle=False)
+        share = ("stream validation", str(Path(run.subspace).resolve()), Path(run.subspace).stat().st_mtime_ns,
+                 ds.name, str(getattr(ds, "path", "")), tuple(map(repr, val_views.records)), val_views.settings, view,
+                 hashlib.sha256(mean.astype(np.float32).tobytes() + std.astype(np.float32).tobytes()).hexdigest())
         return TrainingData(ModelView(train_views, K, view, mean, std, augment_roll),
-                            ModelViewStream(val_views, K, view, mean, std), settings, tuple(ds.classes), mean, std,
+                            ModelViewStream(val_views, K, view, mean, std, share=share), settings, tuple(ds.classes),
+                            mean, std,
                             train_labels=obj_labels[np.arange(len(train_views)) % len(obj_labels)])
     raise ValueError(f"unknown training data source {source!r}; expected one of {', '.join(DATA_SOURCES)}")
