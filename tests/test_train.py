@@ -177,3 +177,20 @@ def test_the_loops_optimizer_on_cuda_is_fused_so_the_amp_scaler_steps_without_re
     n_fused, w_fused = steps("cuda")                 # the CUDA choice, made on CPU tensors
     assert n_default > 0 and n_fused == 0
     torch.testing.assert_close(w_fused, w_default)   # the same update, to rounding
+
+
+def test_the_loss_keeps_its_constants_on_the_device_instead_of_copying_them_every_step():
+    """The voxel loss's coefficient scale and the class weights reach the loss's device once (a host array
+    copied to a GPU every step makes the host wait for the device each time): the second step gets the same
+    tensor, with the values of the formula, in the output's dtype."""
+    coeff_std = np.array([0.5, 1.0, 2.0], np.float32)
+    task = HBEONetTask(CFG, coeff_std=coeff_std, class_weights=(1.0, 2.0, 0.5))
+    like = torch.zeros(4, 3, dtype=torch.float64)
+    first = task._scale(like)
+    assert task._scale(like) is first and first.dtype == torch.float64
+    rms = np.sqrt(np.mean(coeff_std.astype(np.float64) ** 2))
+    np.testing.assert_allclose(first.numpy(), rms / coeff_std.astype(np.float64), rtol=1e-12)
+    assert task._scale(like.float()) is not first and task._scale(like.float()).dtype == torch.float32
+    w = task._class_weights(like)
+    assert task._class_weights(like) is w and w.tolist() == [1.0, 2.0, 0.5]
+    assert HBEONetTask(CFG)._scale(like) == 1.0 and HBEONetTask(CFG)._class_weights(like) is None

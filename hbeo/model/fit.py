@@ -76,16 +76,33 @@ class HBEONetTask:
             cfg["class_weights"] = [float(x) for x in self.class_weights]
         return cfg
 
-    def _class_weights(self):
-        return None if self.class_weights is None else torch.as_tensor(self.class_weights, dtype=torch.float32)
+    def _kept(self, name: str, like: torch.Tensor, make):
+        """``make(device, dtype)`` (a tensor) for ``like``'s device and dtype, kept after its first use: a host
+        array copied to a GPU every step is a copy the host waits for (torch synchronises a blocking
+        host-to-device copy), so each step would wait for the previous one's kernels."""
+        kept = self.__dict__.setdefault("_on_device", {})
+        key = (name, str(like.device), like.dtype)
+        if key not in kept:
+            kept[key] = make(like.device, like.dtype)
+        return kept[key]
+
+    def _class_weights(self, like: torch.Tensor):
+        """The cross-entropy's class weights on ``like``'s device in its dtype; None: unweighted."""
+        if self.class_weights is None:
+            return None
+        return self._kept("class_weights", like, lambda device, dtype: torch.as_tensor(
+            self.class_weights, dtype=torch.float32).to(device, dtype))
 
     def _scale(self, like: torch.Tensor):
         """Divisor of the standardized coefficient error: 1 (paper) or rms(std) / std (raw coefficients,
-        rescaled: :data:`SHAPE_LOSSES`)."""
+        rescaled: :data:`SHAPE_LOSSES`), on ``like``'s device in its dtype."""
         if self.coeff_std is None:
             return 1.0
-        std = torch.as_tensor(self.coeff_std, dtype=like.dtype, device=like.device)
-        return std.square().mean().sqrt() / std
+
+        def make(device, dtype):
+            std = torch.as_tensor(self.coeff_std, dtype=dtype, device=device)
+            return std.square().mean().sqrt() / std
+        return self._kept("scale", like, make)
 
     def build(self) -> HBEONet:
         return HBEONet(self.net_cfg).to(memory_format=torch.channels_last)
@@ -93,14 +110,14 @@ class HBEONetTask:
     def loss(self, net: HBEONet, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
         out = net(batch["depth"].contiguous(memory_format=torch.channels_last))
         return hbeo_loss(out, batch, self.net_cfg, self.weights, self._scale(out["coeffs"]),
-                         getattr(net, "bin_rotations", None), self._class_weights())
+                         getattr(net, "bin_rotations", None), self._class_weights(out["logits"]))
 
     def validate(self, net: HBEONet, batches) -> dict[str, float]:
         means, errors = ValidationMeans(), []
         for batch in batches:
             out = net(batch["depth"])
             loss, parts = hbeo_loss(out, batch, self.net_cfg, self.weights, self._scale(out["coeffs"]),
-                                    getattr(net, "bin_rotations", None), self._class_weights())
+                                    getattr(net, "bin_rotations", None), self._class_weights(out["logits"]))
             means.add(loss, parts, out["logits"], batch["label"])
             R = net.pose_matrix(out["pose"].float()).cpu().numpy()
             errors.append(geodesic_deg(R, batch["rotation"].cpu().numpy()))
