@@ -453,6 +453,10 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
                 _checkpoint(ckpt_path, log_path, base, module, opt, scaler, epoch - 1, step, history,
                             {"batches": done, "seen": seen, "loss_sum": float(run_loss),
                              "elapsed": time.perf_counter() - t0})
+        # the host runs ahead of a GPU (no reads in the step): wait for the queued kernels, so that the epoch's
+        # images/s counts them (the device job chooses its steps from a calibration's)
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
         elapsed = time.perf_counter() - t0
         if w.main:
             val = _validate(task, module, val_set, cfg, device) if val_set is not None else {}
