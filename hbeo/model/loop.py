@@ -158,8 +158,8 @@ def optimizer(params, cfg: TrainConfig, device: torch.device) -> torch.optim.Ada
     """The loop's AdamW. On CUDA its fused kernel: one launch for all parameters instead of a few per group,
     and the AMP gradient scaler's step then hands it the inf/NaN flag on the device instead of reading it
     back (``GradScaler.step`` calls ``.item()`` for other optimizers: a host wait every step, while a small
-    network's kernels take less time than their launches). Elsewhere torch's default (foreach), as before:
-    the CPU's trainings and their committed weights are unchanged."""
+    network's kernels take less time than their launches). Elsewhere torch's default implementation, as
+    before: the CPU's trainings and their committed weights are unchanged."""
     return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay,
                              fused=True if device.type == "cuda" else None)
 
@@ -224,7 +224,6 @@ def data_loader(dataset: Dataset, cfg: TrainConfig, epoch: int | None = None, wo
         dataset.plan_reads(order, (world.rank * len(mine) if world.parallel else 0) + skip_batches * cfg.batch_size)
     return DataLoader(dataset, batch_size=cfg.batch_size, sampler=order, num_workers=cfg.num_workers,
                       generator=gen, collate_fn=collate)
-
 
 
 def _to(batch: dict, device) -> dict:

@@ -320,8 +320,9 @@ def auto_render_ahead(free_bytes: int, pixels: int) -> int:
 STREAM_CACHE_PIXELS = 2**28
 
 
-#: passes of :class:`ModelViewStream` kept for other trainings of this process, by their ``share`` key (the
-#: last one only)
+#: passes of :class:`ModelViewStream` kept for other trainings of this process, by their ``share`` key: the
+#: last one only, held until another replaces it (at most :data:`STREAM_CACHE_PIXELS` float32 depth pixels:
+#: 15 MB for the ``cpu`` profile's 398 validation objects x 2 views at 80x60)
 _SHARED_PASSES: dict = {}
 
 
