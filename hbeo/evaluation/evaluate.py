@@ -214,8 +214,16 @@ def rendered_chunks(rs, records, split: str, chunk: int, failures: list, bar):
     from hbeo.render.views import ObjectViews
     for start in range(0, len(records), chunk):
         viewer, batch = ObjectViews(rs), []
+        span = range(start, min(start + chunk, len(records)))
         try:
-            for i in range(start, min(start + chunk, len(records))):
+            if viewer.batched():      # a GPU: the chunk's objects ray-marched together, the same arrays
+                try:
+                    many = viewer.query_views_many([records[i] for i in span], split, rs.views_per_object)
+                    batch = [(i, records[i], v, record_grid(records[i])) for i, v in zip(span, many)]
+                    span = ()
+                except DataError:     # a bad object: the chunk again one object at a time, which names it
+                    batch = []
+            for i in span:
                 try:
                     batch.append((i, records[i], viewer.query_views(records[i], split, rs.views_per_object),
                                   record_grid(records[i])))

@@ -239,11 +239,14 @@ class StreamingDepth(IterableDataset):
         wid, nw = (0, 1) if info is None else (info.id, info.num_workers)
         mine = self.object_order()[wid::nw]
         ctx = ObjectViews(self.settings, self.subspace)
+        block = MANY_OBJECTS if ctx.batched() else 1   # on a GPU objects ray-marched together: the same arrays
         try:
-            for p in mine:
-                arrays = ctx.views(self.records[p], int(p), self.labels[p], self.split, self.epoch)
-                for v in range(self.settings.views_per_object):
-                    yield _item(arrays, v)
+            for k in range(0, len(mine), block):
+                part = [int(p) for p in mine[k:k + block]]
+                for arrays in ctx.views_many([self.records[p] for p in part], part, [self.labels[p] for p in part],
+                                             self.split, self.epoch):
+                    for v in range(self.settings.views_per_object):
+                        yield _item(arrays, v)
         finally:
             ctx.close()
 
@@ -407,6 +410,10 @@ class FreshPoses(TorchDataset):
         if not self.renders_batches:
             return [self[i] for i in indices]
         return Stacked(self.render_batch(indices))
+
+
+#: objects a :class:`StreamingDepth` pass renders together on a GPU (:meth:`hbeo.render.views.ObjectViews.views_many`)
+MANY_OBJECTS = 128
 
 
 #: :func:`roll_rng`'s tag, which keeps its streams apart from :func:`hbeo.render.views.object_rng`'s
