@@ -206,8 +206,9 @@ def _noise_description(noise) -> dict | None:
 
 
 class ObjectViews:
-    """All views of one object at a time, with one Renderer per process (opened lazily): the one
-    place that turns an object and the settings into labelled depth images (for :func:`render_set`,
+    """All views of one object at a time (or of many, ray-marched together on a GPU: :meth:`views_many`,
+    :meth:`query_views_many`), with one Renderer per process (opened lazily): the one place that turns an
+    object and the settings into labelled depth images (for :func:`render_set`,
     :class:`hbeo.render.torch_datasets.StreamingDepth` and :func:`hbeo.evaluation.evaluate.evaluate_model`)."""
 
     def __init__(self, settings: RenderSettings, subspace=None):
