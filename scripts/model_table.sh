@@ -100,6 +100,11 @@ done
 #     seed 0 (about 4.7 h alone on the 2-core VM; resumes from its checkpoint). Rule fixed before its result
 #     (2026-11-27): it replaces the recipe only if its validation one-pass class mean is at least 72.1 % (the
 #     reference's 71.1 % + 1 point); only then is it evaluated on the test split.
+#     The same recipe trained on a lent GPU (README "Paper scale on one GPU"; two calls, `--budget 720`) is judged by
+#     the same rule on the same queries, and only if its `lease.json` says the whole schedule ran (`steps` 33,630;
+#     a cut schedule is lease history, docs/history/gpu-cpu-stream/): the returned model joined
+#     (`cat model.hbeo.gz.part* | gunzip > $R/model_stream.hbeo`, SHA-256 checked against lease.json) replaces the
+#     training line below, and the evaluations run here on the CPU (written 2026-11-27, before any such lease).
 $PY -m hbeo train --dataset $D --profile cpu --data stream --backend torch --name model_stream.hbeo \
     --checkpoint-every 500 --quiet
 $PY -m hbeo evaluate --model $R/model_stream.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
