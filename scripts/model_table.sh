@@ -24,6 +24,14 @@ for b in sampler loss; do
   $PY -m hbeo evaluate --model $R/model_abl5_bal-$b.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
       --out $H/eval_val-abl5-bal-$b.json
 done
+# 1c. (issue 29 item 2, added 2026-11-27 before its result) fresh views at the same budget: 1b's sampler row trained
+#     on `--data stream --backend torch` (a fresh pose for every image, rendered on the CPU as it trains; the same
+#     5 epochs of 71,720 images), against 1b's sampler row on validation. An ablation row only: it chooses nothing
+#     (the 30-epoch stream candidate is 4f's).
+$PY -m hbeo train --dataset $D --profile cpu --rotation bins --augment-roll --shape-loss voxels --epochs 5 \
+    --class-balance sampler --data stream --backend torch --name model_abl5_stream.hbeo --checkpoint-every 500 --quiet
+$PY -m hbeo evaluate --model $R/model_abl5_stream.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
+    --out $H/eval_val-abl5-stream.json
 # 2. the reference model then (voxel loss chosen), 30 epochs (the epoch count chosen on validation earlier), on the
 #    training split's class mix (the reference run at tag repro-cpu-2026-11-24a; its files now in $H as *-unbal*)
 $PY -m hbeo train --dataset $D --profile cpu --class-balance none --name model_unbal.hbeo --checkpoint-every 500 --quiet
