@@ -65,6 +65,7 @@ class HBEONetTask:
     weights: LossWeights = field(default_factory=LossWeights)
     coeff_std: np.ndarray | None = None
     class_weights: tuple | None = None
+    _on_device: dict = field(default_factory=dict, init=False, repr=False, compare=False)   # :meth:`_kept`'s
     kind = "hbeonet"
     unit = "images"
 
@@ -80,11 +81,10 @@ class HBEONetTask:
         """``make(device, dtype)`` (a tensor) for ``like``'s device and dtype, kept after its first use: a host
         array copied to a GPU every step is a copy the host waits for (torch synchronises a blocking
         host-to-device copy), so each step would wait for the previous one's kernels."""
-        kept = self.__dict__.setdefault("_on_device", {})
         key = (name, str(like.device), like.dtype)
-        if key not in kept:
-            kept[key] = make(like.device, like.dtype)
-        return kept[key]
+        if key not in self._on_device:
+            self._on_device[key] = make(like.device, like.dtype)
+        return self._on_device[key]
 
     def _class_weights(self, like: torch.Tensor):
         """The cross-entropy's class weights on ``like``'s device in its dtype; None: unweighted."""

@@ -260,17 +260,12 @@ class ObjectViews:
 
     def views(self, record, position: int, label: int, split: str, epoch: int = 0) -> dict:
         """The arrays of all views of one object (shard layout, mask still unpacked)."""
-        s = self.settings
-        rng = object_rng(s.seed, split, position, epoch)
-        R, t = s.view_sampler.sample(s.views_per_object, rng)
-        return self._render(record, position, label, R, t, [rng] * len(R))
+        return self.views_many([record], [position], [label], split, epoch, batched=False)[0]
 
     def query_views(self, record, split: str, views: int, label: int = -1) -> dict:
         """Query views 0 .. ``views``-1 of one object for evaluation, each from its own stream
         (:func:`query_rng`: paired across methods and view counts); same arrays as :meth:`views`."""
-        rngs = [query_rng(self.settings.seed, split, record, j) for j in range(views)]
-        R, t = self.settings.view_sampler.sample_each(rngs)
-        return self._render(record, object_key(record), label, R, t, rngs)
+        return self.query_views_many([record], split, views, [label], batched=False)[0]
 
     def batched(self) -> bool:
         """Whether :meth:`views_many` and :meth:`query_views_many` ray-march many objects together: the
@@ -283,50 +278,51 @@ class ObjectViews:
     def views_many(self, records, positions, labels, split: str, epoch: int = 0, batched: bool | None = None):
         """:meth:`views` of each of ``records`` (with its position and label): the same arrays, ray-marched
         together where :meth:`batched` (or ``batched``) says so."""
-        if not (self.batched() if batched is None else batched):
-            return [self.views(r, p, lab, split, epoch) for r, p, lab in zip(records, positions, labels)]
         s = self.settings
         rngs = [object_rng(s.seed, split, p, epoch) for p in positions]
         poses = [s.view_sampler.sample(s.views_per_object, g) for g in rngs]
-        return self._render_many(records, positions, labels, poses, [[g] * s.views_per_object for g in rngs])
+        return self._render_many(records, positions, labels, poses, [[g] * s.views_per_object for g in rngs],
+                                 self.batched() if batched is None else batched)
 
     def query_views_many(self, records, split: str, views: int, labels=None, batched: bool | None = None):
         """:meth:`query_views` of each of ``records`` (labels -1 unless given): the same arrays, ray-marched
         together where :meth:`batched` (or ``batched``) says so."""
         labels = [-1] * len(records) if labels is None else list(labels)
-        if not (self.batched() if batched is None else batched):
-            return [self.query_views(r, split, views, lab) for r, lab in zip(records, labels)]
         rngs = [[query_rng(self.settings.seed, split, r, j) for j in range(views)] for r in records]
         poses = [self.settings.view_sampler.sample_each(g) for g in rngs]
-        return self._render_many(records, [object_key(r) for r in records], labels, poses, rngs)
+        return self._render_many(records, [object_key(r) for r in records], labels, poses, rngs,
+                                 self.batched() if batched is None else batched)
 
     #: rays marched together by :meth:`_render_many` (~128 bytes a ray: ~1 GiB; 1,747 views at 80x60, 109 at 320x240)
     MANY_RAYS = 2**23
 
-    def _render_many(self, records, positions, labels, poses, rngs) -> list[dict]:
-        """The ``torch`` backend over many objects: one :class:`hbeo.render.gridcast.GridCaster` of their grids,
-        every object's views (``poses``: (R, t) each) marched together, at most :data:`MANY_RAYS` rays a march,
-        then :meth:`finish` per object as :meth:`_render` does. If that fails, object by object
-        (:meth:`_render`), which names an object at fault."""
-        import torch
-        from hbeo.render.gridcast import GridCaster
-        try:
-            check_grid_records(records)
-            caster = GridCaster([r.grid() for r in records], self.intrinsics, self.settings.object_size,
-                                device="cuda" if torch.cuda.is_available() else "cpu")
-            idx = np.concatenate([np.full(len(R), k, np.int64) for k, (R, _) in enumerate(poses)])
-            R, t = np.concatenate([R for R, _ in poses]), np.concatenate([t for _, t in poses])
-            M = max(1, self.MANY_RAYS // (self.intrinsics.width * self.intrinsics.height))
-            depth = np.concatenate([caster.render(idx[i:i + M], R[i:i + M], t[i:i + M]).cpu().numpy()
-                                    for i in range(0, len(idx), M)])
-        except Exception:
-            return [self._render(r, p, lab, R, t, g) for r, p, lab, (R, t), g in
-                    zip(records, positions, labels, poses, rngs)]
-        out, at = [], 0
-        for r, p, lab, (R, t), g in zip(records, positions, labels, poses, rngs):
-            out.append(self.finish(r, p, lab, R, t, g, depth[at:at + len(R)]))
-            at += len(R)
-        return out
+    def _render_many(self, records, positions, labels, poses, rngs, batched: bool) -> list[dict]:
+        """Each object's views at its ``poses`` ((R, t) each) with its ``rngs``, as :meth:`_render` gives them.
+        ``batched`` (the ``torch`` backend): one :class:`hbeo.render.gridcast.GridCaster` of their grids, every
+        view marched together, at most :data:`MANY_RAYS` rays a march, then :meth:`finish` per object; if that
+        fails, and without ``batched``, object by object (:meth:`_render`, which names an object at fault)."""
+        if batched:
+            import torch
+            from hbeo.render.gridcast import GridCaster
+            try:
+                check_grid_records(records)
+                caster = GridCaster([r.grid() for r in records], self.intrinsics, self.settings.object_size,
+                                    device="cuda" if torch.cuda.is_available() else "cpu")
+                idx = np.concatenate([np.full(len(R), k, np.int64) for k, (R, _) in enumerate(poses)])
+                R, t = np.concatenate([R for R, _ in poses]), np.concatenate([t for _, t in poses])
+                M = max(1, self.MANY_RAYS // (self.intrinsics.width * self.intrinsics.height))
+                depth = np.concatenate([caster.render(idx[i:i + M], R[i:i + M], t[i:i + M]).cpu().numpy()
+                                        for i in range(0, len(idx), M)])
+            except Exception:
+                pass
+            else:
+                out, at = [], 0
+                for r, p, lab, (R, t), g in zip(records, positions, labels, poses, rngs):
+                    out.append(self.finish(r, p, lab, R, t, g, depth[at:at + len(R)]))
+                    at += len(R)
+                return out
+        return [self._render(r, p, lab, R, t, g) for r, p, lab, (R, t), g in
+                zip(records, positions, labels, poses, rngs)]
 
     def _render(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list) -> dict:
         s = self.settings
