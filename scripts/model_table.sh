@@ -133,6 +133,27 @@ for s in 0 1 2; do
   cp "${WORK:-/tmp/hbeo-voxcnn-seeds}/eval_test-voxcnn-s$s.json" $R/
   mkdir -p $R/train_voxcnn-s$s && cp "${WORK:-/tmp/hbeo-voxcnn-seeds}/train_voxcnn-s$s/train_log.csv" $R/train_voxcnn-s$s/
 done
+# 4i. (issue 29 item 2, written 2026-11-27 before its result) the class loss weighted up: the recipe with
+#     gamma_c = 4 (`--loss-weights 4,1,1`), 30 epochs, seed 0. Why: the reference's training log shows no
+#     overfitting (validation loss below the training loss and still falling at epoch 30), and the class term is the
+#     smallest part of the loss (validation CE 0.73 against pose 5.0 and voxels 7.9 at epoch 30), so the shared
+#     layers are fitted mostly for pose and shape. Rule: it replaces the recipe only if its validation one-pass
+#     class mean is at least 74.4 % (the mean of the recipe's three training seeds on validation, 72.8 %, plus their
+#     sd, 1.6: a bar that another seed of the same recipe would rarely pass; 4f's "reference + 1 point" would be
+#     passed by the seeds' own mean) and its validation within 30 deg raw is no more than 3 points below the
+#     reference's 46.9 %; only then is it evaluated on the test split (one pass and 4 rolls).
+$PY -m hbeo train --dataset $D --profile cpu --loss-weights 4,1,1 --name model_cw4.hbeo --checkpoint-every 500 --quiet
+$PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
+    --out $R/eval_val-cw4.json
+$PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
+    --out $R/eval_val-cw4-rolls4.json
+if $PY -c "import json, sys; e = json.load(open('$R/eval_val-cw4.json'))
+sys.exit(e['class_mean_accuracy'] < 0.744 or e['pose_error_deg']['within_30'] < 0.439)"; then
+  $PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split test --views 3 --seed 0 --quiet \
+      --out $R/eval_test-cw4.json
+  $PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
+      --out $R/eval_test-cw4-rolls4.json
+fi
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'
