@@ -68,8 +68,6 @@ from hbeo.rundir import failure
 from hbeo.subspace.metrics import edt_error, iou, naive_error
 
 
-
-
 @dataclass(frozen=True)
 class EvaluationSetup:
     """What fixes an evaluation's queries and scoring, apart from the method answering them: the

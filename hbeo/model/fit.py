@@ -42,12 +42,7 @@ from hbeo.model.trainingdata import (CLASS_BALANCE, DATA_SOURCES, ClassBalanced,
 SHAPE_LOSSES = ("coeffs", "voxels")
 
 
-
-
 # --------------------------------------------------------------------------- HBEONet for the loop
-
-
-
 
 
 @dataclass
@@ -124,26 +119,6 @@ class HBEONetTask:
         if means.n == 0:
             return {}
         return {**means.means(), "pose_median_deg": float(np.median(np.concatenate(errors)))}
-
-
-# --------------------------------------------------------------------------- the data
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 # --------------------------------------------------------------------------- run folder -> model file

@@ -50,7 +50,6 @@ def load_shard(path) -> dict:
     return data
 
 
-
 def _item(arrays: dict, i: int) -> dict:
     """One image of shard-layout arrays -> the dict of tensors the training loop takes."""
     out = {
