@@ -47,7 +47,7 @@ FRACTION = _number(float, 0, 1, lo_open=True)       #: (0, 1]
 OPEN_FRACTION = _number(float, 0, 1, True, True)    #: (0, 1)
 #: options whose value may start with "-" (a list of numbers): joined to it before parsing, so a
 #: negative first number reaches the option's own check instead of argparse's usage text
-_LIST_OPTIONS = ("--intrinsics", "--loss-weights", "--verify-set")
+_LIST_OPTIONS = ("--intrinsics", "--loss-weights", "--fc", "--verify-set")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -124,12 +124,13 @@ def cmd_render(args) -> int:
 
 def cmd_train(args) -> int:
     from hbeo.model import distributed
-    from hbeo.model.fit import TrainOptions, parse_loss_weights
+    from hbeo.model.fit import TrainOptions, parse_fc, parse_loss_weights
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
-                        loss=parse_loss_weights(args.loss_weights), **{k: getattr(args, k) for k in same})
+                        loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
+                        **{k: getattr(args, k) for k in same})
     world = distributed.setup()                       # under torchrun: join the other processes
     t = _run(args).train(opts, progress=not (args.quiet or not world.main))
     if world.main:
@@ -297,6 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "rendered on the fly with a fresh pose per object per pass (default: the profile's)")
     p.add_argument("--loss-weights", default="1,1,1",
                    help="gamma_c,gamma_o,gamma_p: weights of the class, pose and coefficient losses (1,1,1)")
+    p.add_argument("--fc", help="W1,W2,W3: widths of HBEONet's three shared fully connected layers (default: the "
+                                "profile's, hbeo.config.NetworkConfig.fc)")
     p.add_argument("--shape-loss", choices=("coeffs", "voxels"),
                    help="shape term: the standardized coefficient error (paper) or the completed grid's occupancy "
                         "error through the basis (default: the profile's recipe, hbeo.config.RecipeConfig.fit_kwargs)")

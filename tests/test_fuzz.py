@@ -632,6 +632,9 @@ def test_values_meaning_nothing_refused(predict_folder, tmp_path):
     assert line.startswith("--loss-weights ") and "finite" in line, line
     line = cli_error(["train", "--loss-weights", "-1,1,1"])      # starts with "-": still the option's own check
     assert line.startswith("--loss-weights "), line
+    for fc in ("512,256", "-1,2,3", "a,b,c"):                   # three positive widths, or the option's own line
+        line = cli_error(["train", "--fc", fc])
+        assert line.startswith("--fc ") and "three" in line, line
     assert not out.exists()
 
 

@@ -8,6 +8,7 @@ from hbeo import cli, config
 from hbeo.config import Profile
 from hbeo.data import datasets
 from hbeo.model.fit import TrainOptions
+from hbeo.model.inference import HBEO
 from hbeo.model.trainingdata import ViewOptions
 from hbeo.run import Run, Trained
 from hbeo.rundir import DEFAULT_MODEL
@@ -36,13 +37,13 @@ def test_the_train_command_resolves_the_profile_and_dataset_once_and_records_pro
                                                     "render_train"])      # no model or checkpoint of the ci run
     calls = _count(monkeypatch)
     assert cli.main(["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
-                     "--max-steps", "1", "--rotation", "6d", "--quiet"]) == 0
+                     "--max-steps", "1", "--rotation", "6d", "--fc", "12,10,8", "--quiet"]) == 0
     assert calls == {"profile": 1, "dataset": 1}
     info = json.loads((run.training(run.model) / "provenance.json").read_text())
     assert info["model"] == DEFAULT_MODEL and info["epochs"] == 1 and info["resumed_from_step"] is None
     assert info["recipe"]["rotation"] == "6d" and info["n_params"] > 0
-    assert info["options"] == {"epochs": 1, "rotation": "6d", "max_steps": 1}
-    assert run.model.is_file()
+    assert info["options"] == {"epochs": 1, "rotation": "6d", "max_steps": 1, "fc": [12, 10, 8]}
+    assert HBEO.load(run.model).net.cfg.fc == (12, 10, 8)       # the widths asked for, not the profile's
 
 
 def test_stages_skip_what_the_run_folder_holds(ci_render, ci_run, copy_run, tmp_path, monkeypatch):

@@ -133,7 +133,8 @@ class TrainOptions:
     normalization: depth input ``none`` (metres, the paper) or ``center``; view: :class:`ViewOptions`;
     sampler / views / backend: the training views' sampler, views per object and render backend (render
     settings; ``torch`` with ``data="stream"``: batches rendered on the training device); loss: the
-    weights gamma_c, gamma_o, gamma_p of the paper's loss; val_fraction: objects held out for validation;
+    weights gamma_c, gamma_o, gamma_p of the paper's loss; fc: the widths of HBEONet's three shared fully
+    connected layers (None: the profile's :attr:`hbeo.config.NetworkConfig.fc`); val_fraction: objects held out for validation;
     seed: the training seed (initial weights, batch order, augmentation; None: the run's,
     :attr:`hbeo.run.Run.training_seed`, 0 unless asked, and 0 outside a Run); name: the model file in
     the run folder; max_steps: stop after that many optimizer steps (the schedule ends there);
@@ -154,6 +155,7 @@ class TrainOptions:
     views: int | None = None
     backend: str = "auto"
     loss: LossWeights = field(default_factory=LossWeights)
+    fc: tuple[int, int, int] | None = None
     val_fraction: float = 0.1
     seed: int | None = None
     name: str = DEFAULT_MODEL
@@ -187,6 +189,18 @@ def parse_loss_weights(text: str) -> LossWeights:
     if not all(math.isfinite(v) and v >= 0 for v in (c, o, p)) or c + o + p == 0:
         raise ValueError(f"--loss-weights must be finite, not negative and not all zero, got {text!r}")
     return LossWeights(c, o, p)
+
+
+def parse_fc(text: str) -> tuple[int, int, int]:
+    """``"W1,W2,W3"`` (``python -m hbeo train --fc``) -> the three shared layer widths; ValueError naming the
+    option for anything but three positive whole numbers."""
+    try:
+        widths = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--fc takes three whole numbers W1,W2,W3, got {text!r}") from None
+    if len(widths) != 3 or min(widths) < 1:
+        raise ValueError(f"--fc takes three positive widths (HBEONet has three shared layers), got {text!r}")
+    return widths
 
 
 def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, settings: RenderSettings | None = None,
@@ -227,7 +241,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings,
                          prof.data.val_split, prof.data.twin_iou)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
-                    conv_channels=tuple(prof.network.conv_channels), fc=tuple(prof.network.fc),
+                    conv_channels=tuple(prof.network.conv_channels), fc=tuple(opts.fc or prof.network.fc),
                     kernel=prof.network.kernel, rotation=rotation, normalization=opts.normalization)
     how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
            "val_fraction": opts.val_fraction}
