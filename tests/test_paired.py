@@ -108,3 +108,32 @@ def test_query_views_are_paired_across_view_counts_and_object_lists():
     assert np.array_equal(x, query_rng(0, "test", a, 1).random(4))
     assert not np.array_equal(x, query_rng(0, "test", a, 0).random(4))
     assert not np.array_equal(x, query_rng(0, "val", a, 1).random(4))
+
+
+def test_two_models_of_the_same_method_are_contrasted_on_their_shared_queries(tmp_path):
+    import json
+    import subprocess
+    import sys
+    a = fake("hbeo", "3dof", True, 10.0, 0.0)                      # two HBEO models: the same method key
+    b = fake("hbeo", "3dof", lambda k: k % 2 == 0, 40.0, 0.0)
+    est = paired.contrast_pair(a, b, n_boot=300)
+    assert list(est) == list(paired.CONTRASTS)
+    assert est["class_accuracy"].value == pytest.approx(1 - 0.5) and est["accuracy"].value == pytest.approx(0.5)
+    assert est["class_accuracy"].low <= 0.5 <= est["class_accuracy"].high < 1
+    assert est["within_30"].value == pytest.approx(1.0) and est["pose_median"].value == pytest.approx(-30.0)
+    assert est["accuracy"].n_queries == 90 and est["accuracy"].n_objects == 30
+    other = fake("hbeo", "3dof", True, 10.0, 0.0, objects=[("chair", "elsewhere_0001")])
+    with pytest.raises(ValueError, match="no queries"):
+        paired.contrast_pair(a, other)
+    for name, m in (("a.json", a), ("b.json", b)):
+        (tmp_path / name).write_text(json.dumps(m))
+    script = [sys.executable, "scripts/paired_contrast.py", str(tmp_path / "a.json"), str(tmp_path / "b.json"),
+              "--out", str(tmp_path / "d.json")]
+    done = subprocess.run(script, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "class_accuracy: 50.0 [" in done.stdout
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["contrasts"]["accuracy"]["value"] == pytest.approx(0.5) and "paired_contrast.py" in doc["made_by"]
+    (tmp_path / "bad.json").write_text("{")
+    done = subprocess.run(script[:2] + [str(tmp_path / "bad.json")] + script[3:], capture_output=True, text=True)
+    assert done.returncode == 2 and "bad.json: not a readable metrics file" in done.stderr
