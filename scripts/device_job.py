@@ -4,7 +4,7 @@ leave what must come back under a lent GPU machine's transfer limits.
     python scripts/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
                                  [--out DIR] [--wait SECONDS] [--budget SECONDS] [--split test|val]
                                  [--data stream] [--backend torch] [--class-balance sampler] [--epochs N] [--seed S]
-                                 [--render-ahead N]
+                                 [--render-ahead N] [--loss-weights C,O,P] [--fc W1,W2,W3]
 
 The training flags override the profile's recipe as ``python -m hbeo train``'s do (e.g. the ``cpu`` profile's
 recipe with fresh views rendered on the GPU: ``--profile cpu --data stream --backend torch``); ``--split val``
@@ -125,7 +125,7 @@ def round_weights_bf16(path: Path) -> None:
 
 
 #: ``python -m hbeo train`` options the device job passes on (TrainOptions' names; None: the profile's)
-TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed", "render_ahead")
+TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed", "render_ahead", "loss_weights", "fc")
 VAL_EVAL = "eval_val_hbeo_3dof.json"     # --split val: the validation objects' metrics (the run's own test file
                                          # keeps its name, eval_hbeo_3dof.json)
 
@@ -136,9 +136,15 @@ def train_flags(args) -> dict:
 
 
 def train_options(args, **kw):
-    """The worker's TrainOptions: the job's training flags (:func:`train_flags`) and ``kw``."""
-    from hbeo.model.fit import TrainOptions
-    return TrainOptions(**train_flags(args), **kw)
+    """The worker's TrainOptions: the job's training flags (:func:`train_flags`; ``--loss-weights`` and
+    ``--fc`` as text, parsed here as ``python -m hbeo train`` parses them) and ``kw``."""
+    from hbeo.model.fit import TrainOptions, parse_fc, parse_loss_weights
+    flags = train_flags(args)
+    if "loss_weights" in flags:
+        flags["loss"] = parse_loss_weights(flags.pop("loss_weights"))
+    if "fc" in flags:
+        flags["fc"] = parse_fc(flags["fc"])
+    return TrainOptions(**flags, **kw)
 
 
 def fit_budget(run, args, t_start: float) -> dict:
@@ -319,6 +325,8 @@ def main(argv=None) -> int:
     g.add_argument("--seed", type=int)
     g.add_argument("--render-ahead", type=int, metavar="N",
                    help="stream/torch: images rendered in one march (default: up to 2048 on a GPU, as its free memory allows)")
+    g.add_argument("--loss-weights", metavar="C,O,P", help="gamma_c,gamma_o,gamma_p of the loss (1,1,1)")
+    g.add_argument("--fc", metavar="W1,W2,W3", help="widths of HBEONet's three shared layers (the profile's)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.budget is not None and not args.budget > 0:
@@ -327,6 +335,10 @@ def main(argv=None) -> int:
         p.error("--calibrate must be >= 1 and --eval-reserve >= 0")
     if (args.epochs is not None and args.epochs < 1) or (args.seed is not None and args.seed < 0):
         p.error("--epochs must be >= 1 and --seed >= 0")
+    try:
+        train_options(args)
+    except ValueError as err:
+        p.error(str(err))
     from hbeo.rundir import RunDir
     args.run = Path(args.run) if args.run else RunDir.for_run(args.profile, args.dataset).path
     args.run.mkdir(parents=True, exist_ok=True)

@@ -105,10 +105,13 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
     run, out = tmp_path / "run", tmp_path / "out"
     # with training flags and the validation split (choosing a recipe: never the test split)
     r = _job(run, out, "--budget", "120", "--calibrate", "3", "--eval-reserve", "20", "--split", "val",
-             "--class-balance", "sampler", "--seed", "1")
+             "--class-balance", "sampler", "--seed", "1", "--loss-weights", "2,1,1", "--fc", "32,16,16")
     assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
     lease = json.loads((out / "lease.json").read_text())
-    assert lease["split"] == "val" and lease["train_options"] == {"class_balance": "sampler", "seed": 1}
+    assert lease["split"] == "val" and lease["train_options"] == {"class_balance": "sampler", "seed": 1,
+                                                                  "loss_weights": "2,1,1", "fc": "32,16,16"}
+    assert lease["provenance"]["options"]["fc"] == [32, 16, 16]
+    assert lease["provenance"]["options"]["loss"] == {"classification": 2.0, "pose": 1.0, "coeffs": 1.0}
     val = json.loads((out / "eval_val_hbeo_3dof.json").read_text())
     assert val["split"] == "val" and not (out / "eval_hbeo_3dof.json").exists()
     assert lease["provenance"]["options"]["class_balance"] == "sampler" and lease["provenance"].get("seed") == 1
@@ -123,7 +126,8 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
 
 def test_device_job_refuses_bad_training_flags(tmp_path):
     for flags, word in ((("--epochs", "0"), "--epochs"), (("--seed", "-1"), "--seed"),
-                        (("--class-balance", "some"), "--class-balance"), (("--split", "train"), "--split")):
+                        (("--class-balance", "some"), "--class-balance"), (("--split", "train"), "--split"),
+                        (("--loss-weights", "1,1"), "--loss-weights"), (("--fc", "64,0,64"), "--fc")):
         r = _job(tmp_path / "run", tmp_path / "out", *flags)
         assert r.returncode == 2 and word in r.stderr, (flags, r.stderr)
 
