@@ -6,6 +6,7 @@
 - :mod:`~hbeo.evaluation.sweep`: scoring many settings of one model on the same validation queries;
 - :mod:`~hbeo.evaluation.paired`: paired statistics over objects (bootstrap, contrasts, claim verdicts);
 - :mod:`~hbeo.evaluation.intervals`: bootstrap intervals over objects;
+- :mod:`~hbeo.evaluation.flips`: where large pose errors point (front/back flips about the up axis or not);
 - :mod:`~hbeo.evaluation.method`: each method's display label.
 
 Nothing here draws, formats or writes a report: that is :mod:`hbeo.report`, one layer up.
