@@ -30,8 +30,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     out = pose_flips(HBEO.load(args.model), get_dataset(args.dataset), args.split, args.views, args.seed,
                      args.per_class, args.rolls, progress=True)
-    out = {"model": args.model, "made_by": "python scripts/pose_flips.py " + " ".join(sys.argv[1:] if argv is None else argv),
-           **out}
+    made_by = "python scripts/pose_flips.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    out = {"model": args.model, "made_by": made_by, **out}
     for c in out["classes"]:
         up = "-" if c["about_up"] is None else f"{100 * c['about_up']:.0f} %"
         print(f"{c['class']:12s} n={c['n']:5d}  errors >= {out['big_deg']:.0f} deg: {100 * c['flips']:5.1f} %  "

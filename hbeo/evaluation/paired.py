@@ -169,7 +169,8 @@ CONTRASTS = ("class_accuracy", "accuracy", "within_30", "pose_median", "iou_mean
 def contrast_pair(a: dict, b: dict, stats=CONTRASTS, n_boot: int = N_BOOT, seed: int = 0) -> dict[str, Estimate]:
     """Two metrics dicts of the same queries (e.g. two models' validation files): each statistic of ``a``
     minus ``b`` on the pairs both answered, with its paired interval over objects. The two may carry the
-    same method key (two HBEO models): ``a`` is then re-keyed. ValueError (from :meth:`PairedBootstrap.draws`) when they share no pair."""
+    same method key (two HBEO models): ``a`` is then re-keyed. ValueError (from
+    :meth:`PairedBootstrap.draws`) when they share no pair."""
     a = dict(a, method=f"{a['method']} (a)") if (a["method"], a["pose"]) == (b["method"], b["pose"]) else a
     boot = PairedBootstrap([a, b], n_boot=n_boot, seed=seed)
     ka, kb = (a["method"], a["pose"]), (b["method"], b["pose"])

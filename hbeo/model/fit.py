@@ -134,7 +134,8 @@ class TrainOptions:
     sampler / views / backend: the training views' sampler, views per object and render backend (render
     settings; ``torch`` with ``data="stream"``: batches rendered on the training device); loss: the
     weights gamma_c, gamma_o, gamma_p of the paper's loss; fc: the widths of HBEONet's three shared fully
-    connected layers (None: the profile's :attr:`hbeo.config.NetworkConfig.fc`); val_fraction: objects held out for validation;
+    connected layers (None: the profile's :attr:`hbeo.config.NetworkConfig.fc`); val_fraction: objects held
+    out for validation;
     seed: the training seed (initial weights, batch order, augmentation; None: the run's,
     :attr:`hbeo.run.Run.training_seed`, 0 unless asked, and 0 outside a Run); name: the model file in
     the run folder; max_steps: stop after that many optimizer steps (the schedule ends there);
