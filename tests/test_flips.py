@@ -32,3 +32,23 @@ def test_the_flip_table_counts_flips_and_their_axes_per_class():
     assert table["all"]["n"] == 6 and table["all"]["flips"] == pytest.approx(2 / 6) and table["all"]["about_up"] == 0.5
     with pytest.raises(ValueError, match="no queries"):
         flip_table([])
+
+
+@pytest.mark.slow
+def test_pose_flips_scores_the_evaluation_s_own_views(ci_model):
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.evaluation.evaluate import evaluate_model
+    from hbeo.evaluation.flips import BIG_DEG, pose_flips
+    from hbeo.model.inference import HBEO
+    model = HBEO.load(ci_model)
+    ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
+    out = pose_flips(model, ds, split="test", views=2, per_class=1, progress=False)
+    ref = evaluate_model(model, ds, split="test", views=2, per_class=1, progress=False)
+    every = out["classes"][-1]
+    assert every["class"] == "all" and every["n"] == ref["n_queries"] == 20 and out["n_objects"] == 10
+    # the same images as the evaluation: the same share of errors at or above BIG_DEG, class by class
+    deg, cls = np.array(ref["per_query"]["pose_deg"]), np.array(ref["per_query"]["class"])
+    assert every["flips"] == pytest.approx(np.mean(deg >= BIG_DEG), abs=1e-9)
+    for row in out["classes"][:-1]:
+        assert row["flips"] == pytest.approx(np.mean(deg[cls == row["class"]] >= BIG_DEG), abs=1e-9)
