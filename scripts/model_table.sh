@@ -103,6 +103,16 @@ for r in 1 4; do
   $PY -m hbeo evaluate --model $R/model.hbeo --ensemble $R/model-s1.hbeo --ensemble $R/model-s2.hbeo --dataset $D \
       --split val --views 3 --seed 0 --rolls $r --quiet --out $R/eval_val-ens3-rolls$r.json
 done
+# Helpers of steps 4f-4k. pair MODEL SPLIT STEM: MODEL scored on SPLIT's 3 views per object (view seed 0), one pass
+# into $R/STEM.json and 4 rolls into $R/STEM-rolls4.json. passes_4i FILE: 4i's rule on a validation one-pass file.
+pair() {
+  $PY -m hbeo evaluate --model $R/$1 --dataset $D --split $2 --views 3 --seed 0 --quiet --out $R/$3.json
+  $PY -m hbeo evaluate --model $R/$1 --dataset $D --split $2 --views 3 --seed 0 --rolls 4 --quiet --out $R/$3-rolls4.json
+}
+passes_4i() {
+  $PY -c "import json, sys; e = json.load(open('$R/$1'))
+sys.exit(e['class_mean_accuracy'] < 0.744 or e['pose_error_deg']['within_30'] < 0.439)"
+}
 # 4f. (issue 29 item 2) fresh views every pass: the recipe trained on `--data stream` (a fresh pose per object per
 #     pass, rendered by the torch ray marcher as it trains) instead of the 20 fixed views per object, 30 epochs,
 #     seed 0 (about 4.7 h alone on the 2-core VM; resumes from its checkpoint). Rule fixed before its result
@@ -115,15 +125,9 @@ done
 #     training line below, and the evaluations run here on the CPU (written 2026-11-27, before any such lease).
 $PY -m hbeo train --dataset $D --profile cpu --data stream --backend torch --name model_stream.hbeo \
     --checkpoint-every 500 --quiet
-$PY -m hbeo evaluate --model $R/model_stream.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
-    --out $R/eval_val-stream.json
-$PY -m hbeo evaluate --model $R/model_stream.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
-    --out $R/eval_val-stream-rolls4.json
+pair model_stream.hbeo val eval_val-stream
 if $PY -c "import json, sys; sys.exit(json.load(open('$R/eval_val-stream.json'))['class_mean_accuracy'] < 0.721)"; then
-  $PY -m hbeo evaluate --model $R/model_stream.hbeo --dataset $D --split test --views 3 --seed 0 --quiet \
-      --out $R/eval_test-stream.json
-  $PY -m hbeo evaluate --model $R/model_stream.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
-      --out $R/eval_test-stream-rolls4.json
+  pair model_stream.hbeo test eval_test-stream
 fi
 # 4h. (issue 29 item 4) the 3-D CNN baseline trained again with training seeds 0, 1, 2 in a work folder (the run's
 #     rendered training set made again there), each scored on the same test views; its model-table row
@@ -143,16 +147,9 @@ done
 #     passed by the seeds' own mean) and its validation within 30 deg raw is no more than 3 points below the
 #     reference's 46.9 %; only then is it evaluated on the test split (one pass and 4 rolls).
 $PY -m hbeo train --dataset $D --profile cpu --loss-weights 4,1,1 --name model_cw4.hbeo --checkpoint-every 500 --quiet
-$PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
-    --out $R/eval_val-cw4.json
-$PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
-    --out $R/eval_val-cw4-rolls4.json
-if $PY -c "import json, sys; e = json.load(open('$R/eval_val-cw4.json'))
-sys.exit(e['class_mean_accuracy'] < 0.744 or e['pose_error_deg']['within_30'] < 0.439)"; then
-  $PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split test --views 3 --seed 0 --quiet \
-      --out $R/eval_test-cw4.json
-  $PY -m hbeo evaluate --model $R/model_cw4.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
-      --out $R/eval_test-cw4-rolls4.json
+pair model_cw4.hbeo val eval_val-cw4
+if passes_4i eval_val-cw4.json; then
+  pair model_cw4.hbeo test eval_test-cw4
 fi
 # 4j. (issue 29 item 2, written 2026-11-27 before its result, while 4i trained) more room in the shared layers: the
 #     recipe with HBEONet's three fully connected layers widened from the cpu profile's (512, 256, 256) to
@@ -161,16 +158,9 @@ fi
 #     read a 256-wide layer. The rule of 4i, on the same queries; if both pass, the higher validation one-pass class
 #     mean is the candidate.
 $PY -m hbeo train --dataset $D --profile cpu --fc 1024,512,512 --name model_fc1024.hbeo --checkpoint-every 500 --quiet
-$PY -m hbeo evaluate --model $R/model_fc1024.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
-    --out $R/eval_val-fc1024.json
-$PY -m hbeo evaluate --model $R/model_fc1024.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \
-    --out $R/eval_val-fc1024-rolls4.json
-if $PY -c "import json, sys; e = json.load(open('$R/eval_val-fc1024.json'))
-sys.exit(e['class_mean_accuracy'] < 0.744 or e['pose_error_deg']['within_30'] < 0.439)"; then
-  $PY -m hbeo evaluate --model $R/model_fc1024.hbeo --dataset $D --split test --views 3 --seed 0 --quiet \
-      --out $R/eval_test-fc1024.json
-  $PY -m hbeo evaluate --model $R/model_fc1024.hbeo --dataset $D --split test --views 3 --seed 0 --rolls 4 --quiet \
-      --out $R/eval_test-fc1024-rolls4.json
+pair model_fc1024.hbeo val eval_val-fc1024
+if passes_4i eval_val-fc1024.json; then
+  pair model_fc1024.hbeo test eval_test-fc1024
 fi
 # 4k. (issue 29, written 2026-11-27 after 4j's validation result and before any of these) 4j's recipe with training seeds
 #     1 and 2 (about 65 min each on a 2-core AVX-512 VM), scored on the same validation queries. Rule: the cpu
@@ -192,10 +182,7 @@ cm = lambda es: st.mean(x['class_mean_accuracy'] for x in es)
 w30 = lambda es: st.mean(x['pose_error_deg']['within_30'] for x in es)
 sys.exit(not (cm(new) > cm(ref) and w30(new) > w30(ref)))"; then
   for s in "" -s1 -s2; do
-    for r in 1 4; do
-      $PY -m hbeo evaluate --model $R/model_fc1024$s.hbeo --dataset $D --split test --views 3 --seed 0 --rolls $r \
-          --quiet --out $R/eval_test-fc1024$s-rolls$r.json
-    done
+    pair model_fc1024$s.hbeo test eval_test-fc1024$s
   done
 fi
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
