@@ -103,8 +103,9 @@ for r in 1 4; do
   $PY -m hbeo evaluate --model $R/model.hbeo --ensemble $R/model-s1.hbeo --ensemble $R/model-s2.hbeo --dataset $D \
       --split val --views 3 --seed 0 --rolls $r --quiet --out $R/eval_val-ens3-rolls$r.json
 done
-# Helpers of steps 4f-4k. pair MODEL SPLIT STEM: MODEL scored on SPLIT's 3 views per object (view seed 0), one pass
-# into $R/STEM.json and 4 rolls into $R/STEM-rolls4.json. passes_4i FILE: 4i's rule on a validation one-pass file.
+# Helpers of steps 4f-4l. pair MODEL SPLIT STEM: MODEL scored on SPLIT's 3 views per object (view seed 0), one pass
+# into $R/STEM.json and 4 rolls into $R/STEM-rolls4.json. passes_4i FILE: 4i's rule on a validation one-pass file;
+# passes_4k: 4k's rule (also picks 4l's recipe).
 pair() {
   $PY -m hbeo evaluate --model $R/$1 --dataset $D --split $2 --views 3 --seed 0 --quiet --out $R/$3.json
   $PY -m hbeo evaluate --model $R/$1 --dataset $D --split $2 --views 3 --seed 0 --rolls 4 --quiet --out $R/$3-rolls4.json
@@ -112,6 +113,15 @@ pair() {
 passes_4i() {
   $PY -c "import json, sys; e = json.load(open('$R/$1'))
 sys.exit(e['class_mean_accuracy'] < 0.744 or e['pose_error_deg']['within_30'] < 0.439)"
+}
+passes_4k() {   # 4k's rule: the wider layers' three seeds beat the reference recipe's on both validation means
+  $PY -c "import json, statistics as st, sys
+e = lambda f: json.load(open('$R/' + f))
+new = [e(f) for f in ('eval_val-fc1024.json', 'eval_val-fc1024-s1.json', 'eval_val-fc1024-s2.json')]
+ref = [e(f) for f in ('eval_val-ref.json', 'eval_val-ref-s1.json', 'eval_val-ref-s2.json')]
+cm = lambda es: st.mean(x['class_mean_accuracy'] for x in es)
+w30 = lambda es: st.mean(x['pose_error_deg']['within_30'] for x in es)
+sys.exit(not (cm(new) > cm(ref) and w30(new) > w30(ref)))"
 }
 # 4f. (issue 29 item 2) fresh views every pass: the recipe trained on `--data stream` (a fresh pose per object per
 #     pass, rendered by the torch ray marcher as it trains) instead of the 20 fixed views per object, 30 epochs,
@@ -174,15 +184,36 @@ for s in 1 2; do
   $PY -m hbeo evaluate --model $R/model_fc1024-s$s.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
       --out $R/eval_val-fc1024-s$s.json
 done
-if $PY -c "import json, statistics as st, sys
-e = lambda f: json.load(open('$R/' + f))
-new = [e(f) for f in ('eval_val-fc1024.json', 'eval_val-fc1024-s1.json', 'eval_val-fc1024-s2.json')]
-ref = [e(f) for f in ('eval_val-ref.json', 'eval_val-ref-s1.json', 'eval_val-ref-s2.json')]
-cm = lambda es: st.mean(x['class_mean_accuracy'] for x in es)
-w30 = lambda es: st.mean(x['pose_error_deg']['within_30'] for x in es)
-sys.exit(not (cm(new) > cm(ref) and w30(new) > w30(ref)))"; then
+if passes_4k; then
   for s in "" -s1 -s2; do
     pair model_fc1024$s.hbeo test eval_test-fc1024$s
+  done
+fi
+# 4l. (issue 29 item 2, written 2026-11-27 23:45 UTC while 4k's seed 1 trained, before 4k's and 4l's results) longer
+#     training: the recipe 4k leaves in the cpu profile (FC below: (1024, 512, 512) if 4k's rule passed, else the
+#     profile's (512, 256, 256)) trained 60 epochs instead of 30 (the cosine schedule stretched over twice the steps),
+#     seed 0; about 110 min on a 2-core AVX-512 VM. Why: every 30-epoch log shows underfitting, not overfitting
+#     (4j's: validation loss 13.34 below the training loss 13.45 at epoch 30, the validation pose median still falling
+#     from 52 to 29 deg over the last 6 epochs). Rule, on the same validation queries, against B, the three training
+#     seeds of that recipe at 30 epochs (eval_val-fc1024{,-s1,-s2}.json if 4k passed, else eval_val-ref{,-s1,-s2}.json):
+#     the profile's epochs become 60 only if its one-pass class mean is at least mean(B) + sd(B) and its within 30 deg
+#     raw at least mean(B) + sd(B) as well (4i's bar for the class mean, applied to pose too, since pose is the larger
+#     gap); only then its training seeds 1 and 2, and the test split after them as in 4k.
+if passes_4k; then FC=1024,512,512 B=fc1024; else FC=512,256,256 B=ref; fi
+$PY -m hbeo train --dataset $D --profile cpu --fc $FC --epochs 60 --name model_e60.hbeo --checkpoint-every 500 --quiet
+pair model_e60.hbeo val eval_val-e60
+if $PY -c "import json, statistics as st, sys
+e = lambda f: json.load(open('$R/' + f))
+b, new = [e(f) for f in ('eval_val-$B.json', 'eval_val-$B-s1.json', 'eval_val-$B-s2.json')], e('eval_val-e60.json')
+bar = lambda get: st.mean(get(x) for x in b) + st.stdev(get(x) for x in b)
+cm, w30 = (lambda x: x['class_mean_accuracy']), (lambda x: x['pose_error_deg']['within_30'])
+print(f'4l: class mean {cm(new):.3f} (bar {bar(cm):.3f}), within 30 deg {w30(new):.3f} (bar {bar(w30):.3f})')
+sys.exit(cm(new) < bar(cm) or w30(new) < bar(w30))"; then
+  for s in 1 2; do
+    $PY -m hbeo train --dataset $D --profile cpu --fc $FC --epochs 60 --seed $s --name model_e60-s$s.hbeo \
+        --checkpoint-every 500 --quiet
+    $PY -m hbeo evaluate --model $R/model_e60-s$s.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
+        --out $R/eval_val-e60-s$s.json
   done
 fi
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
