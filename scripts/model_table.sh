@@ -243,6 +243,9 @@ v40() {   # v40 SEED NAME: the 40-view recipe trained in $W4M with training seed
   $PY -m hbeo train --dataset $D --profile cpu --out $W4M --fc 1024,512,512 --views 40 --epochs $EP --seed $1 \
       --name $2 --checkpoint-every 500 --quiet
   cp $W4M/$2 $R/ && mkdir -p $R/train_${2%.hbeo} && cp $W4M/train_${2%.hbeo}/{train_log.csv,provenance.json} $R/train_${2%.hbeo}/
+  $PY -c "import numpy as np, sys; a, b = np.load('$W4M/subspace.npz'), np.load('$R/subspace.npz')
+sys.exit(sorted(a) != sorted(b) or not all(np.array_equal(a[k], b[k]) for k in a))" \
+      || { echo "4m: the work folder's subspace differs from the run's: not the same recipe" >&2; exit 1; }
 }
 v40 0 model_v40.hbeo
 pair model_v40.hbeo val eval_val-v40
