@@ -3,7 +3,9 @@
 Each class c gets a VBPCA model on its flattened training grids (d = 27,000); the
 shared basis spans ``[W_1 ... W_m, mu_1 ... mu_m]`` (the kept principal directions
 and the means of all classes) and is orthonormalized by an SVD that keeps singular
-values above ``rank_tol`` x the largest (rank-revealing). Objects are coordinates
+values above ``rank_tol`` x the largest (rank-revealing). Each basis column (and each
+class's VBPCA direction) has its entry of largest magnitude positive (:func:`~hbeo.subspace.vbpca.fix_signs`),
+so the same grids give the same basis on any LAPACK build. Objects are coordinates
 in that basis:
 
     project       o' = W^T o                       (complete grids)
@@ -29,7 +31,7 @@ from tqdm.auto import tqdm
 from hbeo import conventions as C
 from hbeo.errors import DataError
 from hbeo.storage import read_npz, write_npz
-from hbeo.subspace.vbpca import VBPCA
+from hbeo.subspace.vbpca import VBPCA, fix_signs
 
 FORMAT_VERSION = 1
 
@@ -169,7 +171,8 @@ class ObjectSubspace:
         s = np.sqrt(s2)
         keep = s > self.rank_tol * s[0]
         self.singular_values_ = s
-        self.basis_ = np.ascontiguousarray(((R[:, keep] / s[keep]).T @ M).T.astype(np.float32))  # (d, k)
+        basis = fix_signs(((R[:, keep] / s[keep]).T @ M).T)          # (d, k), signs as on any machine
+        self.basis_ = np.ascontiguousarray(basis.astype(np.float32))
         self.dim_ = int(keep.sum())
 
     # ------------------------------------------------------------ inference

@@ -30,6 +30,22 @@ from threadpoolctl import threadpool_limits
 _LOG2PI = np.log(2 * np.pi)
 
 
+def fix_signs(columns: np.ndarray) -> np.ndarray:
+    """Columns (d, k) -> the same columns, each with the sign that makes its entry of largest magnitude
+    positive (magnitudes compared to 6 significant digits of the column's largest, the first in order on a
+    tie, as for a mirror-antisymmetric shape mode). An eigenvector's sign is whatever the LAPACK build
+    returns: two machines fitting the same grids got 12 of the 143 shared directions with opposite signs
+    (2026-11-28), so models trained on them learned opposite coefficients. Span and orthonormality are
+    unchanged; an all-zero column stays as it is."""
+    if columns.size == 0:
+        return columns
+    mag = np.abs(columns)
+    top = mag.max(axis=0)
+    lead = np.argmax(np.round(mag / np.where(top > 0, top, 1.0), 6), axis=0)   # first of the (rounded) maxima
+    sign = np.sign(columns[lead, np.arange(columns.shape[1])])
+    return columns * np.where(sign < 0, -1, 1).astype(columns.dtype)
+
+
 class VBPCA(TransformerMixin, BaseEstimator):
     """Variational Bayesian PCA with ARD, scikit-learn style.
 
@@ -148,7 +164,7 @@ class VBPCA(TransformerMixin, BaseEstimator):
             active = ((s2 > spread) & (s2 > floor)) if self.prune else s2 > np.finfo(float).tiny
             s2, R = s2[active], R[:, active]
             dirs_coords = (Mw @ R) / np.sqrt(s2)      # (r, k) orthonormal
-            comps = to_features(dirs_coords).T
+            comps = fix_signs(to_features(dirs_coords)).T
             alpha_rot = np.einsum("ik,i,ik->k", R, self._alpha, R)
         else:
             s2, comps, alpha_rot = np.zeros(0), np.zeros((0, d)), np.zeros(0)
