@@ -221,3 +221,24 @@ def test_vox30_with_an_empty_split(tmp_path):
     ds = datasets.Vox30Dataset(_vox30_with(tmp_path / "v.npz", X_test=np.zeros((0, 30, 30, 30), np.uint8),
                                            y_test=np.zeros(0, np.int64), names_test=np.array([], str)))
     assert len(ds.records("train")) == 2 and ds.records("test") == []
+
+
+def test_vox30_record_pickles_its_own_grid_not_the_whole_archive(tmp_path):
+    # each Dask render task pickles its records: a loader bound to the whole (N, 30, 30, 30) array sent
+    # all N grids with every task (a 40-view ModelNet10 render held ~17 GB and was OOM-killed)
+    import pickle
+    X = np.zeros((200, 30, 30, 30), np.uint8)
+    for i in range(200):
+        X[i, 5:5 + i % 20 + 1, 10:20, 10:12] = 1
+    path = _vox30_with(tmp_path / "many.npz", X_train=X, y_train=np.arange(200) % 2,
+                       names_train=np.array([f"a_{i}" for i in range(200)]))
+    ds = datasets.Vox30Dataset(path)
+    recs = ds.records("train")
+    assert len(recs) == 200
+    for r in (recs[0], recs[137]):
+        blob = pickle.dumps(r)
+        assert len(blob) < 2 * 27_000 + 2_000, len(blob)            # one grid's bytes, not 200
+        back = pickle.loads(blob)
+        assert np.array_equal(back.grid(), r.grid()) and back.id == r.id and back.grid().shape == (30, 30, 30)
+    a, b = recs[5].grid(), recs[6].grid()
+    assert a.base is not None and a.base is b.base                     # in this process: views, no copies
