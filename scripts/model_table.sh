@@ -237,6 +237,10 @@ fi
 #     validation queries against B's three seeds: one-pass class mean and within 30 deg raw each at least mean(B) +
 #     sd(B) (4l's); only then its seeds 1 and 2, and the test split if the three seeds' means beat B's. About 2 h a
 #     seed at 4l's 67,260 steps (1 h at 33,630) on a 2-core AVX-512 VM, plus ~7 min rendering the 40 views.
+#     Run record (2026-11-29, before any result): the first start (06:52 UTC) was OOM-killed while rendering, not
+#     training: each Dask render task pickled the whole training split with its records (fixed in 75ace45). The set was
+#     finished at 08:51 with `hbeo render ... --views 40 --workers 1` into the same work folder (the same set identity
+#     and shards; rendering is resumable) and seed 0 then trained as written below (`--data memory`, 3.9 GB resident).
 W4M=${WORK:-/tmp/hbeo-4m}
 if beats_seeds e60 fc1024; then B=e60 EP=30; else B=fc1024 EP=15; fi
 v40() {   # v40 SEED NAME: the 40-view recipe trained in $W4M with training seed SEED, copied into the run folder
