@@ -5,10 +5,12 @@ status, wall time and peak resident memory (the largest process of the command's
 for: a Dask worker's or the render child's own peak where it is larger). Inputs: the reference model
 ``results/cpu-modelnet10-vox30/model.hbeo`` (rotation bins, 80x60) and a synthetic depth image for
 ``predict``; the procedural dataset at the ``ci`` profile (30 test objects) for ``render`` and
-``evaluate``, in a temporary folder. The refused cases (``--rolls 100000``, ``--views 100000000``)
+``evaluate``, in a temporary folder; where ``HBEO_VOX30`` names the ModelNet10 grid archive, also ``render`` of
+its ``ci`` training objects on 2 Dask workers, one object a shard (one task each: a task once carried the whole
+split's grids). The refused cases (``--rolls 100000``, ``--views 100000000``)
 must exit 2 in about the time it takes to start.
 
-Usage: python benchmarks/bench_memory.py [--quick] [--work DIR]
+Usage: python benchmarks/bench_memory.py [--quick] [--work DIR] [--only TEXT]
 """
 from __future__ import annotations
 
@@ -50,6 +52,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer, smaller cases")
     ap.add_argument("--work", help="scratch folder (default: a temporary one)")
+    ap.add_argument("--only", help="run only the cases whose name contains this text")
     a = ap.parse_args()
     work = Path(a.work or tempfile.mkdtemp(prefix="bench_memory_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -66,6 +69,12 @@ def main() -> None:
     for v in ((8, 64) if a.quick else (8, 64, 256)):
         cases.append((f"render ci test --views {v} ({30 * v:,} images)", render + ["--views", str(v), "--out", f"{run}{v}"]))
     cases.append(("render ci test --views 100000000 (refused)", render + ["--views", "100000000", "--out", run]))
+    vox30 = os.environ.get("HBEO_VOX30", str(ROOT.parent / "shared" / "modelnet10_vox30" / "modelnet10_vox30.npz"))
+    if Path(vox30).is_file():
+        env["HBEO_VOX30"] = vox30
+        cases.append(("render modelnet10-vox30 ci train --views 2 --workers 2 --objects-per-shard 1 (60 Dask tasks)",
+                      ["render", "--dataset", "modelnet10-vox30", "--profile", "ci", "--quiet", "--workers", "2",
+                       "--objects-per-shard", "1", "--views", "2", "--out", f"{run}vox30"]))
     for v in ((1, 8) if a.quick else (1, 8, 32)):
         cases.append((f"evaluate procedural --per-class 1 --views {v}",
                       ["evaluate", "--model", str(MODEL), "--dataset", "procedural", "--per-class", "1", "--views",
@@ -75,6 +84,8 @@ def main() -> None:
                    "--out", str(work / "e.json"), "--quiet"]))
     print("| command | exit | seconds | peak RSS (MB) |\n| --- | ---: | ---: | ---: |")
     for name, args in cases:
+        if a.only and a.only not in name:
+            continue
         code, s, rss, err = measure(args, env)
         print(f"| `{name}` | {code} | {s:.1f} | {rss:.0f} |" + (f" {err[:160]}" if err else ""), flush=True)
 
