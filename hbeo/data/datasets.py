@@ -61,7 +61,7 @@ class ObjectRecord:
 
 class _GridRow:
     """A record's grid loader: row ``i`` of the archive's (N, 30, 30, 30) array, shared (no copy) in
-    this process; pickled (to a render or voxelize worker) as that one grid, not the whole array. (A
+    this process; pickled (to a Dask render worker) as that one grid, not the whole array. (A
     ``partial(G.__getitem__, i)`` pickles all of ``G`` with every record: each Dask task of a rendered
     set then carried the whole split, ~107 MB for ModelNet10's training grids, and the 160 tasks of a
     40-view set held ~17 GB.)"""
