@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from hbeo.config import vox30_path  # noqa: E402
 MODEL = ROOT / "results" / "cpu-modelnet10-vox30" / "model.hbeo"
 
 
@@ -69,9 +71,9 @@ def main() -> None:
     for v in ((8, 64) if a.quick else (8, 64, 256)):
         cases.append((f"render ci test --views {v} ({30 * v:,} images)", render + ["--views", str(v), "--out", f"{run}{v}"]))
     cases.append(("render ci test --views 100000000 (refused)", render + ["--views", "100000000", "--out", run]))
-    vox30 = os.environ.get("HBEO_VOX30", str(ROOT.parent / "shared" / "modelnet10_vox30" / "modelnet10_vox30.npz"))
-    if Path(vox30).is_file():
-        env["HBEO_VOX30"] = vox30
+    vox30 = vox30_path()                     # the project's resolution of HBEO_VOX30 (a file or its folder)
+    if vox30 is not None and vox30.is_file():
+        env["HBEO_VOX30"] = str(vox30)
         cases.append(("render modelnet10-vox30 ci train --views 2 --workers 2 --objects-per-shard 1 (60 Dask tasks)",
                       ["render", "--dataset", "modelnet10-vox30", "--profile", "ci", "--quiet", "--workers", "2",
                        "--objects-per-shard", "1", "--views", "2", "--out", f"{run}vox30"]))
