@@ -241,6 +241,9 @@ fi
 #     training: each Dask render task pickled the whole training split with its records (fixed in 75ace45). The set was
 #     finished at 08:51 with `hbeo render ... --views 40 --workers 1` into the same work folder (the same set identity
 #     and shards; rendering is resumable) and seed 0 then trained as written below (`--data memory`, 3.9 GB resident).
+#     Result (2026-11-29 12:32 UTC; resumed once from its checkpoint at step 53,808): class mean 77.0 % (bar 76.4),
+#     within 30 deg 56.7 % (bar 57.4): the rule is not met, so no seeds 1 and 2 and no test files (models.json row;
+#     v40_vs_e60_val{,_rolls4}.json: `python scripts/paired_contrast.py` of eval_val-v40 against eval_val-e60).
 W4M=${WORK:-/tmp/hbeo-4m}
 if beats_seeds e60 fc1024; then B=e60 EP=30; else B=fc1024 EP=15; fi
 v40() {   # v40 SEED NAME: the 40-view recipe trained in $W4M with training seed SEED, copied into the run folder
@@ -253,6 +256,10 @@ sys.exit(sorted(a) != sorted(b) or not all(np.array_equal(a[k], b[k]) for k in a
 }
 v40 0 model_v40.hbeo
 pair model_v40.hbeo val eval_val-v40
+for x in "" -rolls4; do
+  $PY scripts/paired_contrast.py $R/eval_val-v40$x.json $R/eval_val-e60$x.json --out $R/v40_vs_e60_val${x/-/_}.json \
+      --what "4m: the 60-epoch recipe on 40 rendered views per object for 30 epochs (model_v40.hbeo) minus the same steps on 20 views for 60 epochs (model_e60.hbeo), seed 0 each, validation${x:+ with 4 rolls each} (398 objects x 3 views)"
+done
 if clears_bar v40 $B; then
   for s in 1 2; do
     v40 $s model_v40-s$s.hbeo
