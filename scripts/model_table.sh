@@ -3,6 +3,9 @@
 # Choices are made on the validation objects (evaluate --split val, scripts/tune_verify.py); the test split
 # is evaluated once per chosen row. Files of models the run folder no longer holds are written to $H.
 # About 10 h on a 2-core CPU (each 30-epoch training takes about 2 h). Usage: bash scripts/model_table.sh [PY]
+# Every command below ran with the cpu profile of its day: shared layers (512, 256, 256) and 30 epochs until
+# 2026-11-29, when the profile took 4k's and 4l's choice ((1024, 512, 512), 60 epochs); to repeat a step as it
+# ran, add `--fc 512,256,256` and the epochs it names (30 where it names none).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${1:-.venv/bin/python}
