@@ -8,6 +8,12 @@
 #   2b. the other readings of the view protocol (issue 29) for the fast settings (REPRODUCTION.md's claims under
 #      each reading); the slow ones (beo:1dof, beo:3dof, icp:3dof) take hours: METHODS="beo:1dof icp:3dof beo:3dof".
 #   3. the README's generated blocks.
+#   4. (in the checkout, before the clone's run folder is copied into it) the previous reference's files retired to
+#      docs/history: `python scripts/retire_reference.py --new STEM --label "tag ..., commit ..."`; then the run
+#      folder copied over without deleting (the ablations' files stay), the new reference's models.json rows added
+#      (the target roles the script printed go to them), and step 3 again in the checkout.
+# A run cut off by a session's end goes on with `make reproduce PROFILE=cpu DATASET=$D RESUME=1` (finished
+# stages are skipped, the training resumes from its checkpoint), then SKIP_RUN=1.
 # Usage: bash scripts/reference_run.sh [PY]   (steps 2-3 only with SKIP_RUN=1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
