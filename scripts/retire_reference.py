@@ -14,9 +14,11 @@ the new run's files (same names: ``eval_hbeo_3dof.json``, ``eval_val-ref.json``,
 ``models.json``'s rows follow (their file fields and every file name in their text); the rows of the old
 reference (labels starting ``reference``) are relabelled ``previous reference (LABEL)``, are no longer chosen and
 give up their ``target_role`` (the targets table judges the new reference's rows; the roles are printed so they
-can be given to them). File names in README.md and benchmarks/README.md are rewritten the
-same way (a path ``results/<run>/NAME`` becomes ``docs/history/<run>/NEW``; scripts/model_table.sh, whose commands
-write through ``$R``, is left to be edited by hand) (names of the run's own files, which the new run's files take over, stay). Moves use ``git mv``; ``--dry-run`` prints the plan and changes nothing.
+can be given to them). File names in README.md and benchmarks/README.md are rewritten the same way, a path
+``results/<run>/NAME`` becoming ``docs/history/<run>/NEW``; there, and in the rows' text, the run's own generic
+names (``eval_hbeo_3dof.json``, ``train_model/``), which the new run's files take over, stay.
+scripts/model_table.sh, whose commands write through ``$R``, is left to be edited by hand. Moves use ``git mv``;
+``--dry-run`` prints the plan and changes nothing.
 
 Usage: python scripts/retire_reference.py --old ref --new bal30 \\
            --label "tag repro-cpu-2026-11-26-bal, commit aa98863" [--run results/cpu-modelnet10-vox30] [--dry-run]
