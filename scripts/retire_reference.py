@@ -31,6 +31,10 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from hbeo.rundir import RunDir  # noqa: E402
+from hbeo.storage import atomic_text, json_text  # noqa: E402
+
 TEXT_FILES = ("README.md", "benchmarks/README.md")
 #: the run's own test files (notebooks 05/06), renamed when retired
 OWN = ("eval_hbeo_3dof.json", "eval_hbeo-verify_3dof.json")
@@ -100,9 +104,9 @@ def main(argv=None) -> int:
     ap.add_argument("--label", required=True, help="what identifies the retired run, e.g. its tag and commit")
     ap.add_argument("--dry-run", action="store_true")
     a = ap.parse_args(argv)
-    run = ROOT / a.run
-    hist = ROOT / "docs" / "history" / run.name
-    if not (run / "models.json").is_file():
+    rd = RunDir(ROOT / a.run)
+    run, hist, table = rd.path, rd.history, rd.model_rows
+    if not table.is_file():
         print(f"{run}: not a run folder with a models.json", file=sys.stderr)
         return 1
     moves = plan(run, a.old, a.new)
@@ -112,7 +116,6 @@ def main(argv=None) -> int:
         return 1
     for src, dst in moves.items():
         print(f"{a.run}/{src} -> docs/history/{run.name}/{dst}")
-    table = run / "models.json"
     rows, roles = retire_rows(json.loads(table.read_text()), moves, a.label)
     for lab, role in roles.items():
         print(f"target role {role!r} given up by: {lab[:90]}")
@@ -121,13 +124,14 @@ def main(argv=None) -> int:
     hist.mkdir(parents=True, exist_ok=True)
     for src, dst in moves.items():
         subprocess.run(["git", "mv", str(run / src), str(hist / dst)], check=True, cwd=ROOT)
-    table.write_text(json.dumps(rows, indent=1, ensure_ascii=False) + "\n")
+    atomic_text(table, json_text(rows, indent=1, ensure_ascii=False) + "\n")
+    text_moves = named_in_text(moves)
     for f in TEXT_FILES:
         p = ROOT / f
         t = p.read_text()
-        t2 = rename_in_text(t, named_in_text(moves), run.name)
+        t2 = rename_in_text(t, text_moves, run.name)
         if t2 != t:
-            p.write_text(t2)
+            atomic_text(p, t2)
             print(f"renamed file names in {f}")
     return 0
 
