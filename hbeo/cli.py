@@ -208,7 +208,7 @@ def cmd_report(args) -> int:
         from hbeo.report.seeds import write_seed_table
         if args.model_table or args.readme:
             raise HBEOError("--seeds writes the seed table alone; --model-table and --readme take --run")
-        print("wrote " + " and ".join(map(str, write_seed_table(args.seeds, args.out))))
+        print("wrote " + ", ".join(map(str, write_seed_table(args.seeds, args.out))))
         return 0
     if args.model_table:
         path = model_table.write_model_table(args.run, args.readme)
@@ -383,7 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--run", help="run folder, e.g. results/cpu-modelnet10-vox30")
     g.add_argument("--seeds", nargs="+", metavar="RUN", help="instead: the spread over training seeds of these runs "
-                   "(one profile and dataset, one run per seed, at least 2) -> seeds_table.csv/.md in --out")
+                   "(one profile and dataset, one run per seed, at least 2) -> seeds_table.csv/.md and seeds_claims.csv/.md "
+                   "in --out")
     p.add_argument("--out", help="output file (default: RUN/REPRODUCTION.md; the committed one: paper/REPRODUCTION.md); "
                                  "with --seeds: a folder (default: the first RUN)")
     p.add_argument("--model-table", action="store_true",

@@ -22,6 +22,7 @@ other module and every notebook asks a :class:`RunDir` for a path::
     manifest.json                report: provenance (commit, versions, hardware, wall times)
     REPRODUCTION.md              report: the paper's numbers beside the run's
     seeds_table.csv / .md        report: the spread over training seeds of this and other runs (report --seeds)
+    seeds_claims.csv / .md       report: the paper's claims judged on each of those runs (report --seeds)
     failures.json                batch steps: the objects each left out, ``[{file, reason, step, ...}]``
 
 Metrics files of models the run no longer holds live outside it, in ``docs/history/<run folder name>/``

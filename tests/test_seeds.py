@@ -27,7 +27,8 @@ def _metrics(method, pose, seed, given_class=False, views=1, sampler="so3", obje
             "split": "test", "views": views, "seed": 0, "sampler": sampler, "noise": False,
             "request": {"per_class": None, "dataset_fingerprint": "f00d", "views": views, "seed": 0},
             "per_query": {"object": objects, "view": [0] * n, "class": CLASSES[:n], "pred": pred[:n],
-                          "pose_deg": raw[:n], "pose_sym_deg": sym[:n], "iou": [iou] * n}}
+                          "pose_deg": raw[:n], "pose_sym_deg": sym[:n], "iou": [iou] * n, "edt": [1.0] * n,
+                          "naive": [1.0] * n, "empty": [False] * n, "ms": [5.0] * n}}
 
 
 def _run(folder, seed, profile="ci", dataset="procedural", evals=(("hbeo", "3dof"), ("beo", "known"),
@@ -76,8 +77,10 @@ def test_the_seed_table_gives_each_seed_its_interval_and_the_spread(three):
 
 
 def test_the_table_is_written_as_csv_and_markdown(three, tmp_path):
-    csv, md = S.write_seed_table(three, n_boot=50)
+    csv, md, claims_csv, claims_md = S.write_seed_table(three, n_boot=50)
     assert (csv, md) == (RunDir(three[0]).table("seeds_table"), RunDir(three[0]).table("seeds_table", "md"))
+    assert (claims_csv, claims_md) == (RunDir(three[0]).table("seeds_claims"),
+                                       RunDir(three[0]).table("seeds_claims", "md"))
     assert len(pd.read_csv(csv)) == 6 + 4 + 2
     text = md.read_text()
     assert "| HBEO (3-DOF) | class mean accuracy (%) | 50.0 [" in text and "| 66.7 ± 16.7 | 50.0 – 83.3 |" in text
@@ -128,6 +131,67 @@ def test_report_seeds_on_the_command_line(three, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:                  # --run or --seeds, not both, not neither
         cli.main(["report"])
     assert e.value.code == 2 and "one of the arguments --run --seeds is required" in capsys.readouterr().err
+
+
+def _claims_runs(tmp_path):
+    """Three seeds' runs of HBEO, BEO with known pose and ICP whose answers make the paper's first claim (HBEO
+    classifies better than BEO with known pose) hold for seed 0, fail for seed 1 and straddle zero for seed 2,
+    and its pose claim against ICP (10 deg against 50) hold for every seed."""
+    right = {0: ({"a1", "a2", "a3", "b1"}, set()), 1: (set(), {"a1", "a2", "a3", "b1"}), 2: ({"a1"}, {"a2"})}
+    runs = []
+    for seed, (hbeo_ok, beo_ok) in right.items():
+        run = _run(tmp_path / f"c{seed}", seed, evals=())
+        for (method, pose), ok, deg in ((("hbeo", "3dof"), hbeo_ok, 10.0), (("beo", "known"), beo_ok, 0.0),
+                                        (("icp", "3dof"), set(), 50.0)):
+            m = _metrics(method, pose, seed, method == "icp")
+            q = m["per_query"]
+            q["pred"] = [c if o in ok else ("b" if c == "a" else "a") for o, c in zip(q["object"], q["class"])]
+            q["pose_deg"] = [deg] * len(q["object"])
+            run.evaluation(method, pose).write_text(json.dumps(m))
+        runs.append(run.path)
+    return runs
+
+
+def test_the_claims_are_judged_on_each_seed_s_own_run(tmp_path):
+    runs = _claims_runs(tmp_path)
+    t = S.seed_claims(runs[::-1]).set_index("claim (paper)")     # any order: the runs are taken by seed
+    first = t.loc["HBEO (unknown 3-DOF pose) classifies better than BEO with known pose"]
+    assert first["HBEO played by"] == "HBEO (3-DOF)"
+    assert first["seed 0"] == "**holds**: -100.0 [-100.0, -100.0]"
+    assert first["seed 1"] == "**fails**: 100.0 [100.0, 100.0]"
+    assert first["seed 2"].startswith("**inconclusive**: 0.0 [-")
+    assert first["verdicts"] == "holds 1 of 3, inconclusive 1 of 3, fails 1 of 3"
+    icp = t.loc["HBEO's mean pose error is below the ICP baseline's (ICP given the class)"]
+    assert [icp[f"seed {s}"] for s in (0, 1, 2)] == ["**holds**: -40.0 [-40.0, -40.0]"] * 3
+    assert icp["verdicts"] == "holds 3 of 3"
+    # only the claims whose two settings every run holds: none against the 3-D CNN or BEO 1-DOF or 3-DOF
+    assert len(t) == 3 and not any("end-to-end" in c or "1-DOF" in c for c in t.index)
+    one = _run(tmp_path / "odd", 3, objects=["a1", "a2", "a4", "b1"])     # refused as the seed table refuses
+    with pytest.raises(DataError, match="other \\(object, view\\) pairs"):
+        S.seed_claims([runs[0], one.path])
+
+
+def test_reproduction_shows_the_seed_tables_only_while_they_describe_the_run(tmp_path):
+    from hbeo.report import reproduction_md as report
+    runs = _claims_runs(tmp_path)
+    man = {"profile": "ci", "dataset": "procedural", "seeds": {"training": 0}}
+    lines = "\n".join(S.section(runs[0], man))
+    assert "has not been repeated with other training seeds" in lines and "SEED=S" in lines
+    S.write_seed_table(runs, n_boot=20)
+    assert S.stale(runs[0], 0) is None
+    lines = "\n".join(S.section(runs[0], man))
+    assert "| HBEO (3-DOF) | class mean accuracy (%) |" in lines and "holds 1 of 3, inconclusive 1 of 3" in lines
+    assert lines in report.reproduction_text(runs[0], tmp_path / "R.md")
+    assert S.stale(runs[0], 5) == "it has no column for this run's training seed 5"
+    path = RunDir(runs[0]).evaluation("hbeo", "3dof")                 # the run evaluated again since: not shown
+    m = json.loads(path.read_text())
+    m["per_query"]["pred"][0] = "b"
+    path.write_text(json.dumps(m))
+    assert S.stale(runs[0], 0) == "its class_mean of hbeo (3dof) is not eval_hbeo_3dof.json's"
+    lines = "\n".join(S.section(runs[0], man))
+    assert "does not describe this run's evaluations" in lines and "| HBEO (3-DOF) |" not in lines
+    path.unlink()
+    assert S.stale(runs[0], 0) == "eval_hbeo_3dof.json is missing or unreadable"
 
 
 # --------------------------------------------------------------------------- the seed of a run's trainings

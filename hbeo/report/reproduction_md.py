@@ -3,7 +3,8 @@ deviation from the paper's setup.
 
 :func:`write_reproduction` reads the run folder's manifest (:mod:`hbeo.report.provenance`) and
 the tables and figures notebooks 04-07 wrote there (every path from :class:`hbeo.rundir.RunDir`), with the
-paper's claims under each reading of the view protocol the run has evaluated (:mod:`hbeo.report.readings`), and
+paper's claims under each reading of the view protocol the run has evaluated (:mod:`hbeo.report.readings`) and
+the spread over training seeds where ``report --seeds`` wrote it into the folder (:mod:`hbeo.report.seeds`), and
 writes one Markdown file (atomically) that links into the run: nothing in it is typed by hand except
 the list of deviations, whose figures come from the manifest. :func:`write_reports` is what ``python -m
 hbeo reproduce`` calls after the last notebook: the run's own ``REPRODUCTION.md``, and for the
@@ -20,7 +21,7 @@ import os
 from pathlib import Path
 
 from hbeo import config
-from hbeo.report import readings, tables as T
+from hbeo.report import readings, seeds, tables as T
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -317,6 +318,7 @@ def reproduction_text(run, out: Path) -> str:
         fig("07_runtime", "runtime"),
         "",
         *readings.section(run, man),
+        *seeds.section(run, man),
         "## Options trained in the run (notebook 04, validation objects)",
         "",
         _read(run.table(T.OPTIONS, "md")),

@@ -10,21 +10,27 @@ over objects, and the mean, sample standard deviation and range over the seeds. 
 paired, every run scoring the very same test images: it refuses (DataError naming the file and the
 problem) a folder without a run manifest, runs of another profile or dataset, a training seed given
 twice, and an evaluation of other test images than the first run's (another dataset, split, views, view
-seed, sampler, noise, objects per class, or other (object, view) pairs). :func:`write_seed_table` writes
-the table as ``seeds_table.csv`` and ``seeds_table.md`` (:data:`hbeo.report.tables.SEEDS`), by default
-into the first run's folder (``python -m hbeo report --seeds RUN RUN ...``).
+seed, sampler, noise, objects per class, or other (object, view) pairs). :func:`seed_claims` judges the
+paper's claims (:func:`hbeo.report.tables.claims`, as notebook 06 does) on each run's own evaluations and
+gives each seed's verdict and contrast, and how many seeds each verdict got. :func:`write_seed_table` writes
+both, ``seeds_table.csv``/``.md`` (:data:`hbeo.report.tables.SEEDS`) and ``seeds_claims.csv``/``.md``
+(:data:`hbeo.report.tables.SEEDS_CLAIMS`), by default into the first run's folder (``python -m hbeo report
+--seeds RUN RUN ...``), whose ``REPRODUCTION.md`` then shows them (:func:`section`) while they still agree
+with that run's own evaluation files.
 
 May import: foundation, :mod:`hbeo.evaluation` and the other report modules.
 """
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from hbeo import config
 from hbeo.errors import DataError, HBEOError
 from hbeo.evaluation.intervals import intervals
 from hbeo.evaluation.method import label
@@ -138,6 +144,25 @@ def _read_runs(runs) -> list[SeedRun]:
     return sorted(read, key=lambda r: r.training_seed)
 
 
+def _paired_evaluations(found: list[SeedRun], key: tuple) -> list[dict]:
+    """Setting ``key``'s metrics of every run in ``found`` (:func:`_read_runs`' order), checked to score the
+    first run's test images (DataError naming the file that does not)."""
+    evals = [_evaluation(r, *key) for r in found]
+    for r, m in zip(found[1:], evals[1:]):
+        _check_paired(r.dir.evaluation(*key), m, found[0].dir.evaluation(*key), evals[0])
+    return evals
+
+
+def _common_settings(found: list[SeedRun]) -> list[tuple]:
+    """The settings of :data:`~hbeo.evaluation.protocol.EVALUATIONS` whose metrics file every run holds; DataError
+    when there is none."""
+    settings = [k for k in EVALUATIONS if all(r.dir.evaluation(*k).is_file() for r in found)]
+    if not settings:
+        raise DataError(found[0].dir.path, "no eval_<method>_<pose>.json that every run of the seed table holds "
+                                           "(run the notebooks 04-07 in each)")
+    return settings
+
+
 def seed_table(runs, n_boot: int = N_BOOT, level: float = LEVEL) -> pd.DataFrame:
     """One row per evaluated setting (method, pose) and measure (:data:`MEASURES`) that applies to it, over
     the run folders ``runs`` (at least 2; one profile and dataset, one per training seed, checked, see the
@@ -148,15 +173,9 @@ def seed_table(runs, n_boot: int = N_BOOT, level: float = LEVEL) -> pd.DataFrame
     Figures are fractions (an IoU for ``iou``). The settings are those of
     :data:`hbeo.evaluation.protocol.EVALUATIONS` whose metrics file every run holds."""
     found = _read_runs(runs)
-    settings = [k for k in EVALUATIONS if all(r.dir.evaluation(*k).is_file() for r in found)]
-    if not settings:
-        raise DataError(found[0].dir.path, "no eval_<method>_<pose>.json that every run of the seed table holds "
-                                           "(run the notebooks 04-07 in each)")
     rows = []
-    for key in settings:
-        evals = [_evaluation(r, *key) for r in found]
-        for r, m in zip(found[1:], evals[1:]):
-            _check_paired(r.dir.evaluation(*key), m, found[0].dir.evaluation(*key), evals[0])
+    for key in _common_settings(found):
+        evals = _paired_evaluations(found, key)
         stats = [s for s, (_, applies, _) in MEASURES.items() if key in applies]
         if not stats:
             continue
@@ -170,6 +189,41 @@ def seed_table(runs, n_boot: int = N_BOOT, level: float = LEVEL) -> pd.DataFrame
                 t = r.training_seed
                 row[f"seed {t}"], row[f"seed {t} low"], row[f"seed {t} high"] = p[s]
             rows.append(row)
+    return pd.DataFrame(rows)
+
+
+#: The verdicts of :func:`hbeo.evaluation.paired.verdict`, in the order :func:`seed_claims` counts them.
+VERDICTS = ("holds", "inconclusive", "fails")
+
+
+def seed_claims(runs) -> pd.DataFrame:
+    """The paper's claims judged on each run of ``runs`` (checked as for :func:`seed_table`) by its own
+    evaluations (:func:`hbeo.report.tables.claims` of the settings every run holds: notebook 06's claims
+    table, each of :data:`hbeo.report.tables.PLAYERS` playing HBEO): a row per (player, claim) judged in
+    some run, with ``claim (paper)``, ``HBEO played by``, a column ``seed S`` per run ("**verdict**:
+    contrast [low, high]", the contrast's paired 95 % interval over that run's test objects; "–" where the
+    run could not judge it) and ``verdicts`` (how many seeds gave each verdict, e.g. "fails 3 of 3")."""
+    found = _read_runs(runs)
+    settings = _common_settings(found)
+    evals = [dict() for _ in found]
+    for key in settings:
+        for e, m in zip(evals, _paired_evaluations(found, key)):
+            e[key] = m
+    judged = [tables.claims(e) for e in evals]
+    order = list(dict.fromkeys(i for j in judged for i in j.index))
+    rows = []
+    for idx in order:
+        first = next(j.loc[idx] for j in judged if idx in j.index)
+        row = {"claim (paper)": first["claim (paper)"], "HBEO played by": first["HBEO played by"]}
+        got = []
+        for r, j in zip(found, judged):
+            if idx in j.index:
+                got.append(j.loc[idx, "verdict"])
+                row[f"seed {r.training_seed}"] = f"**{got[-1]}**: {j.loc[idx, 'contrast (claim: < 0)']}"
+            else:
+                row[f"seed {r.training_seed}"] = "–"
+        row["verdicts"] = ", ".join(f"{v} {got.count(v)} of {len(found)}" for v in VERDICTS if v in got)
+        rows.append(row)
     return pd.DataFrame(rows)
 
 
@@ -192,17 +246,80 @@ def markdown_view(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def write_seed_table(runs, out=None, n_boot: int = N_BOOT, level: float = LEVEL) -> tuple[Path, Path]:
+def write_seed_table(runs, out=None, n_boot: int = N_BOOT, level: float = LEVEL) -> tuple[Path, ...]:
     """:func:`seed_table` of ``runs`` written as ``seeds_table.csv`` (numbers) and ``seeds_table.md``
-    (:func:`markdown_view`, with a note naming the runs) into the folder ``out`` (default: the first run
-    folder given), atomically (:func:`hbeo.report.tables.save_table`). Returns both paths."""
+    (:func:`markdown_view`, with a note naming the runs), and :func:`seed_claims` as ``seeds_claims.csv`` and
+    ``.md``, into the folder ``out`` (default: the first run folder given), atomically
+    (:func:`hbeo.report.tables.save_table`). Returns the four paths."""
     runs = list(runs)
     table = seed_table(runs, n_boot=n_boot, level=level)
     found = _read_runs(runs)
-    note = (f"\n\n{len(found)} runs of profile {found[0].profile} on {found[0].dataset}, one per training seed: "
-            + ", ".join(f"`{r.dir.name}` (seed {r.training_seed})" for r in found)
-            + f". Each seed's figure with its {level * 100:g} % interval over test objects (bootstrap over the objects "
-              f"of the whole split, {n_boot} resamples); every run scored the same test images. Mean ± sample standard deviation "
-              f"(n − 1) and range over the seeds.\n")
-    return tables.save_table(table, out if out is not None else runs[0], tables.SEEDS,
-                             markdown=markdown_view(table), note=note)
+    which = (f"{len(found)} runs of profile {found[0].profile} on {found[0].dataset}, one per training seed: "
+             + ", ".join(f"`{r.dir.name}` (seed {r.training_seed})" for r in found) + ". ")
+    note = (f"\n\n{which}Each seed's figure with its {level * 100:g} % interval over test objects (bootstrap over "
+            f"the objects of the whole split, {n_boot} resamples); every run scored the same test images. Mean ± "
+            f"sample standard deviation (n − 1) and range over the seeds.\n")
+    claims_note = (f"\n\n{which}Each claim judged on each run's own evaluations as notebook 06 judges them (the "
+                   f"contrast's paired 95 % interval over that run's test objects; *holds*: the whole interval on the "
+                   f"claim's side, *fails*: on the other, *inconclusive*: it straddles zero).\n")
+    folder = out if out is not None else runs[0]
+    return (*tables.save_table(table, folder, tables.SEEDS, markdown=markdown_view(table), note=note),
+            *tables.save_table(seed_claims(runs), folder, tables.SEEDS_CLAIMS, note=claims_note))
+
+
+def stale(run, seed: int) -> str | None:
+    """Why the seed table in run folder ``run`` (of training seed ``seed``) does not describe that run's own
+    evaluations, or None when every figure of its ``seed S`` column is the point estimate of the run's file
+    of that setting (the run was evaluated again after ``report --seeds``, or the table was written there
+    from other runs: then it is not shown)."""
+    run = RunDir.of(run)
+    try:
+        t = pd.read_csv(run.table(tables.SEEDS))
+    except (OSError, ValueError) as err:
+        return f"{run.table(tables.SEEDS).name} unreadable ({type(err).__name__})"
+    col = f"seed {seed}"
+    if col not in t.columns:
+        return f"it has no column for this run's training seed {seed}"
+    for (method, pose), rows in t.groupby(["method", "pose"], sort=False):
+        path = run.evaluation(method, pose)
+        try:
+            m = json.loads(path.read_text())
+            est = intervals(m, list(rows["statistic"]), n_boot=1)
+        except (OSError, ValueError, KeyError, TypeError):
+            return f"{path.name} is missing or unreadable"
+        for _, r in rows.iterrows():
+            if not np.isclose(r[col], est[r["statistic"]][0], rtol=0, atol=1e-9):
+                return f"its {r['statistic']} of {method} ({pose}) is not {path.name}'s"
+    return None
+
+
+def section(run, man: dict) -> list[str]:
+    """The lines of ``REPRODUCTION.md``'s section on the spread over training seeds for run folder ``run``
+    (``man``: its manifest): the seed table and the claims per seed when the folder holds them and they agree
+    with its evaluations (:func:`stale`), else what is missing and the commands that make it."""
+    run = RunDir.of(run)
+    seed = (man.get("seeds") or {}).get("training", 0)
+    lines = ["## The spread over training seeds", ""]
+    where = os.path.relpath(run.path, config.REPO_ROOT)
+    base = where[:-len(f"-seed{seed}")] if seed and where.endswith(f"-seed{seed}") else where
+    make = (f"`make reproduce PROFILE={man.get('profile')} DATASET={man.get('dataset')} SEED=S` for seeds 1 and 2, "
+            f"then `python -m hbeo report --seeds {base} {base}-seed1 {base}-seed2`")
+    if not run.table(tables.SEEDS, "md").is_file() or not run.table(tables.SEEDS_CLAIMS, "md").is_file():
+        return lines + [f"This run has not been repeated with other training seeds here, so its figures carry "
+                        f"intervals over test objects only; {make} puts every figure's spread over the seeds and each "
+                        f"claim's verdict per seed here.", ""]
+    why = stale(run, seed)
+    if why:
+        return lines + [f"`{tables.SEEDS}.md` in this folder does not describe this run's evaluations ({why}): not "
+                        f"shown; {make} writes it again.", ""]
+    return lines + ["The run made again with other training seeds (`python -m hbeo reproduce --seed S`: HBEONet, "
+                    "its options and the 3-D CNN trained with seed S; data, subspace, renderings and test views keep "
+                    "seed 0, so every run scores the same test images, and the methods that train nothing give the "
+                    "same figures in each): each figure per seed with its interval over test objects, and the "
+                    "spread over the seeds.", "", _read(run.table(tables.SEEDS, "md")), "",
+                    "The paper's claims, judged on each seed's run:", "", _read(run.table(tables.SEEDS_CLAIMS, "md")),
+                    ""]
+
+
+def _read(path: Path) -> str:
+    return path.read_text().strip()

@@ -52,6 +52,7 @@ CLAIMS = "06_claims"                        #: the paper's claims, paired tests
 PER_QUERY = "07_per_query"                  #: one row per query and method (timings)
 TABLE2 = "07_table2"                        #: the paper's Table II (runtime) beside ours
 SEEDS = "seeds_table"                       #: the spread over training seeds of several runs (hbeo.report.seeds)
+SEEDS_CLAIMS = "seeds_claims"               #: the paper's claims judged on each of those runs
 
 
 def paper_table(name: str) -> pd.DataFrame:
