@@ -8,7 +8,8 @@
 # CKPT2=FILE: seed 2's HBEONet resumes from FILE, the final checkpoint of the same recipe trained alone with seed 2
 # (scripts/model_table.sh 4l's train_seeds: `python -m hbeo train ... --fc 1024,512,512 --epochs 60 --seed 2`, the
 # options the cpu profile now holds); the training loop refuses a checkpoint made with other settings, and the run's
-# train_model/provenance.json records resumed_from_step (the last step: nothing is trained again). Without CKPT2
+# train_model/provenance.json records resumed_from_step (the last step: nothing is trained again; the training log
+# is written from the checkpoint's history). Without CKPT2
 # seed 2 trains from scratch as seed 1 does (about 3.5 h each on 2 cores, the whole run about 5 h).
 # A run cut off by a session's end goes on with RESUME=1 (finished notebooks are skipped, training resumes).
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]

@@ -42,6 +42,21 @@ def test_a_run_killed_after_any_step_resumes_to_the_same_weights(tmp_path, unint
     assert pd.read_csv(tmp_path / TRAIN_LOG).drop(columns="images_per_s").equals(log.drop(columns="images_per_s"))
 
 
+def test_a_finished_checkpoint_brought_alone_gives_its_weights_and_its_log(tmp_path, uninterrupted):
+    """A finished training's checkpoint copied into another folder (scripts/seed_runs.sh's CKPT2): training
+    there again trains nothing, returns the same weights and writes the log from the checkpoint's history."""
+    tr, va = job.data()
+    train(job.TASK, tr, va, tmp_path / "a", job.config())
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / CHECKPOINT).write_bytes((tmp_path / "a" / CHECKPOINT).read_bytes())
+    tr, va = job.data()
+    net = train(job.TASK, tr, va, tmp_path / "b", job.config())
+    sha, log = uninterrupted
+    assert weights_sha256(net) == sha
+    assert (tmp_path / "b" / TRAIN_LOG).read_bytes() == (tmp_path / "a" / TRAIN_LOG).read_bytes()
+    assert pd.read_csv(tmp_path / "b" / TRAIN_LOG).drop(columns="images_per_s").equals(log.drop(columns="images_per_s"))
+
+
 def test_checkpoints_inside_an_epoch_say_where_the_epoch_stands(tmp_path):
     tr, va = job.data()
     train(job.TASK, tr, va, tmp_path, job.config(), stop_after_step=13)

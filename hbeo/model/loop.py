@@ -397,6 +397,8 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
         scaler.load_state_dict(ck["scaler"])
         start_epoch, step, history, in_epoch = ck["epoch"] + 1, ck["step"], ck["history"], ck.get("in_epoch")
         rng = ck["rng"]
+        if w.main and history and not log_path.exists():     # a checkpoint brought without its log (copied)
+            write_log(history, log_path)
         if w.parallel:                    # the checkpoint holds rank 0's generators only
             rng = None
             seed_everything(cfg.seed * 1_000 + w.rank + 7_919 * step)
