@@ -144,23 +144,21 @@ def _read_runs(runs) -> list[SeedRun]:
     return sorted(read, key=lambda r: r.training_seed)
 
 
-def _paired_evaluations(found: list[SeedRun], key: tuple) -> list[dict]:
-    """Setting ``key``'s metrics of every run in ``found`` (:func:`_read_runs`' order), checked to score the
-    first run's test images (DataError naming the file that does not)."""
-    evals = [_evaluation(r, *key) for r in found]
-    for r, m in zip(found[1:], evals[1:]):
-        _check_paired(r.dir.evaluation(*key), m, found[0].dir.evaluation(*key), evals[0])
-    return evals
-
-
-def _common_settings(found: list[SeedRun]) -> list[tuple]:
-    """The settings of :data:`~hbeo.evaluation.protocol.EVALUATIONS` whose metrics file every run holds; DataError
-    when there is none."""
+def _load(runs) -> tuple[list[SeedRun], dict[tuple, list[dict]]]:
+    """The runs (:func:`_read_runs`) and, for each setting of :data:`~hbeo.evaluation.protocol.EVALUATIONS` whose
+    metrics file every run holds, its metrics in every run, checked to score the first run's test images
+    (DataError naming the file that does not, or the first run's folder when no setting is common)."""
+    found = _read_runs(runs)
     settings = [k for k in EVALUATIONS if all(r.dir.evaluation(*k).is_file() for r in found)]
     if not settings:
         raise DataError(found[0].dir.path, "no eval_<method>_<pose>.json that every run of the seed table holds "
                                            "(run the notebooks 04-07 in each)")
-    return settings
+    loaded = {}
+    for key in settings:
+        evals = loaded[key] = [_evaluation(r, *key) for r in found]
+        for r, m in zip(found[1:], evals[1:]):
+            _check_paired(r.dir.evaluation(*key), m, found[0].dir.evaluation(*key), evals[0])
+    return found, loaded
 
 
 def seed_table(runs, n_boot: int = N_BOOT, level: float = LEVEL) -> pd.DataFrame:
@@ -172,10 +170,13 @@ def seed_table(runs, n_boot: int = N_BOOT, level: float = LEVEL) -> pd.DataFrame
     (its interval at ``level`` over test objects, ``n_boot`` resamples, :func:`hbeo.evaluation.intervals.intervals`).
     Figures are fractions (an IoU for ``iou``). The settings are those of
     :data:`hbeo.evaluation.protocol.EVALUATIONS` whose metrics file every run holds."""
-    found = _read_runs(runs)
+    return _table(*_load(runs), n_boot, level)
+
+
+def _table(found: list[SeedRun], loaded: dict, n_boot: int, level: float) -> pd.DataFrame:
+    """:func:`seed_table` of what :func:`_load` read."""
     rows = []
-    for key in _common_settings(found):
-        evals = _paired_evaluations(found, key)
+    for key, evals in loaded.items():
         stats = [s for s, (_, applies, _) in MEASURES.items() if key in applies]
         if not stats:
             continue
@@ -203,13 +204,12 @@ def seed_claims(runs) -> pd.DataFrame:
     some run, with ``claim (paper)``, ``HBEO played by``, a column ``seed S`` per run ("**verdict**:
     contrast [low, high]", the contrast's paired 95 % interval over that run's test objects; "–" where the
     run could not judge it) and ``verdicts`` (how many seeds gave each verdict, e.g. "fails 3 of 3")."""
-    found = _read_runs(runs)
-    settings = _common_settings(found)
-    evals = [dict() for _ in found]
-    for key in settings:
-        for e, m in zip(evals, _paired_evaluations(found, key)):
-            e[key] = m
-    judged = [tables.claims(e) for e in evals]
+    return _claims(*_load(runs))
+
+
+def _claims(found: list[SeedRun], loaded: dict) -> pd.DataFrame:
+    """:func:`seed_claims` of what :func:`_load` read."""
+    judged = [tables.claims({key: evals[i] for key, evals in loaded.items()}) for i in range(len(found))]
     order = list(dict.fromkeys(i for j in judged for i in j.index))
     rows = []
     for idx in order:
@@ -252,8 +252,8 @@ def write_seed_table(runs, out=None, n_boot: int = N_BOOT, level: float = LEVEL)
     ``.md``, into the folder ``out`` (default: the first run folder given), atomically
     (:func:`hbeo.report.tables.save_table`). Returns the four paths."""
     runs = list(runs)
-    table = seed_table(runs, n_boot=n_boot, level=level)
-    found = _read_runs(runs)
+    found, loaded = _load(runs)
+    table = _table(found, loaded, n_boot, level)
     which = (f"{len(found)} runs of profile {found[0].profile} on {found[0].dataset}, one per training seed: "
              + ", ".join(f"`{r.dir.name}` (seed {r.training_seed})" for r in found) + ". ")
     note = (f"\n\n{which}Each seed's figure with its {level * 100:g} % interval over test objects (bootstrap over "
@@ -264,7 +264,7 @@ def write_seed_table(runs, out=None, n_boot: int = N_BOOT, level: float = LEVEL)
                    f"claim's side, *fails*: on the other, *inconclusive*: it straddles zero).\n")
     folder = out if out is not None else runs[0]
     return (*tables.save_table(table, folder, tables.SEEDS, markdown=markdown_view(table), note=note),
-            *tables.save_table(seed_claims(runs), folder, tables.SEEDS_CLAIMS, note=claims_note))
+            *tables.save_table(_claims(found, loaded), folder, tables.SEEDS_CLAIMS, note=claims_note))
 
 
 def stale(run, seed: int) -> str | None:
@@ -316,10 +316,6 @@ def section(run, man: dict) -> list[str]:
                     "its options and the 3-D CNN trained with seed S; data, subspace, renderings and test views keep "
                     "seed 0, so every run scores the same test images, and the methods that train nothing give the "
                     "same figures in each): each figure per seed with its interval over test objects, and the "
-                    "spread over the seeds.", "", _read(run.table(tables.SEEDS, "md")), "",
-                    "The paper's claims, judged on each seed's run:", "", _read(run.table(tables.SEEDS_CLAIMS, "md")),
-                    ""]
-
-
-def _read(path: Path) -> str:
-    return path.read_text().strip()
+                    "spread over the seeds.", "", run.table(tables.SEEDS, "md").read_text().strip(), "",
+                    "The paper's claims, judged on each seed's run:", "",
+                    run.table(tables.SEEDS_CLAIMS, "md").read_text().strip(), ""]
