@@ -1,0 +1,93 @@
+#!/usr/bin/env bash
+# The reference run (scripts/reference_run.sh step 1) made in two sessions when one is too short for it: on 2 cores
+# the cpu profile's run takes about 4.5 h (HBEONet's 60 epochs about 2.5 h of it) and a session 3 h, and nothing
+# outside the repository survives a session. So the run's notebooks 01-04 are made in the first session, in a clean
+# clone at a tagged commit, and their products are committed to a stage folder ($R-stage); the next session finishes
+# the same run from them, in a new clean clone at the same commit. Nothing is staged that would not be committed when
+# the run lands (the executed notebooks, tables, figures, training logs and model.hbeo: the same bytes, so the
+# repository's history grows by nothing more); no checkpoint is staged: notebook 04 must have finished.
+#
+#   save CLONE     (session 1, after `make reproduce PROFILE=$P DATASET=$D` in CLONE finished notebook 04)
+#                  copies the run folder's new and changed files that git does not ignore, and model.hbeo, to
+#                  $R-stage/ in this checkout, with STAGE.md saying what they are. Commit that folder.
+#   finish CLONE   (session 2, CLONE a new clean clone at the manifest's git_commit) empties the clone's run folder
+#                  of models and metrics (as --fresh does), copies the stage into it, writes the run's subspace from
+#                  model.hbeo's own basis (notebook 02 is not run again: a subspace fitted again must not differ
+#                  from the one HBEONet was trained with), rebuilds the grids and the rendered training set that
+#                  notebooks 01 and 03 made (ignored files; `hbeo voxelize`, `hbeo render`: the same settings, the
+#                  same bytes), runs notebooks 05-08 (`reproduce --only`, which writes REPRODUCTION.md), then
+#                  scripts/reference_run.sh's steps after the run (SKIP_RUN=1). The manifest then holds 01-04's
+#                  wall times from session 1 and 05-08's from session 2, all at one commit.
+#   Then land the clone's run folder as scripts/reference_run.sh step 4 says, and `git rm -r $R-stage`.
+# Usage: bash scripts/reference_stage.sh save|finish CLONE   (run from this checkout; P=PROFILE, D=DATASET: default cpu,
+# modelnet10-vox30; AFTER=0: not reference_run.sh's steps after the run (another run than the reference); HBEO_VOX30
+# as for the run)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+MAIN=$PWD
+P=${P:-cpu}
+D=${D:-modelnet10-vox30}
+R=results/$P-$D
+S=$R-stage
+[ $# = 2 ] || { echo "usage: bash scripts/reference_stage.sh save|finish CLONE" >&2; exit 2; }
+CLONE=$(cd "$2" && pwd)
+die() { echo "reference_stage.sh: $*" >&2; exit 1; }
+finished() {   # finished MANIFEST NOTEBOOK: the manifest records that notebook's wall time
+  python3 -c "import json, sys; sys.exit('$2' not in json.load(open('$1')).get('notebooks', {}))"
+}
+
+case $1 in
+save)
+  src=$CLONE/$R
+  [ -f "$src/manifest.json" ] || die "$src/manifest.json: no run there"
+  finished "$src/manifest.json" 04_train || die "$src: notebook 04 has not finished (its checkpoints are not staged)"
+  ! finished "$src/manifest.json" 05_classification || die "$src: notebooks 05-08 ran too; land the run instead"
+  [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no -- hbeo notebooks scripts Makefile)" ] \
+    || die "$CLONE: its code differs from its commit"
+  rm -rf "$S" && mkdir -p "$S"
+  n=0
+  while IFS= read -r f; do
+    [ -f "$CLONE/$f" ] || continue                 # deleted by --fresh: the previous reference's, not staged
+    mkdir -p "$S/$(dirname "${f#$R/}")" && cp -p "$CLONE/$f" "$S/${f#$R/}" && n=$((n + 1))
+  done < <(git -C "$CLONE" ls-files -m -o --exclude-standard -- "$R")
+  [ -f "$S/model.hbeo" ] || die "$src/model.hbeo was not among the changed files"
+  python3 - "$src/manifest.json" "$S/STAGE.md" "$n" <<'PY'
+import json, sys
+m = json.load(open(sys.argv[1]))
+nb = m["notebooks"]
+lines = [f"# A reference run in progress: notebooks 01-04 of `{m['git_tag'] or m['git_commit']}`", "",
+         f"Made by `make reproduce PROFILE={m['profile']} DATASET={m['dataset']}` in a clean clone at commit "
+         f"`{m['git_commit']}`{f' (tag `' + m['git_tag'] + '`)' if m['git_tag'] else ''}, git_dirty "
+         f"{str(m['git_dirty']).lower()}; {sys.argv[3]} files, "
+         "staged by `bash scripts/reference_stage.sh save CLONE` because the run does not fit one session.", "",
+         "| notebook | wall s | finished (UTC) |", "| --- | ---: | --- |"]
+lines += [f"| {k} | {v['wall_s']} | {v['finished_utc']} |" for k, v in nb.items()]
+lines += ["", "Not a result yet: notebooks 05-08 have not run. The next session finishes the run from these files "
+          f"(`git clone`, `git checkout {m['git_commit']}`, `bash scripts/reference_stage.sh finish CLONE`), lands it "
+          "and removes this folder.", ""]
+open(sys.argv[2], "w").write("\n".join(lines))
+PY
+  echo "staged $n files of $src in $S (see $S/STAGE.md); commit them"
+  ;;
+finish)
+  [ -f "$S/manifest.json" ] || die "$S/manifest.json: nothing staged"
+  commit=$(python3 -c "import json; print(json.load(open('$S/manifest.json'))['git_commit'])")
+  [ "$(git -C "$CLONE" rev-parse HEAD)" = "$commit" ] || die "$CLONE is not at the run's commit $commit"
+  [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no)$(git -C "$CLONE" ls-files -o -- "$R")" ] \
+    || die "$CLONE is not a clean clone (changed files, or files in $R)"
+  cd "$CLONE"
+  PY=.venv/bin/python
+  make setup
+  mkdir -p "$R"
+  $PY -c "from hbeo.report.notebooks import clear_products
+for p in clear_products('$R'): print('[stage] removed', p)"
+  (cd "$MAIN/$S" && find . -type f ! -name STAGE.md -print0) | (cd "$MAIN/$S" && xargs -0 cp -p --parents -t "$CLONE/$R")
+  $PY -c "from hbeo.model.inference import HBEO
+HBEO.load('$R/model.hbeo').subspace.save('$R/subspace.npz')"
+  $PY -m hbeo voxelize --profile $P --dataset $D --out $R
+  $PY -m hbeo render --profile $P --dataset $D --out $R --split train --quiet
+  $PY -m hbeo reproduce --profile $P --dataset $D --only 05 06 07 08
+  [ "${AFTER:-1}" = 0 ] || SKIP_RUN=1 bash scripts/reference_run.sh $PY
+  ;;
+*) die "unknown step $1 (save or finish)" ;;
+esac

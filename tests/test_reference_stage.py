@@ -1,0 +1,102 @@
+"""scripts/reference_stage.sh on toy git repositories: `save` stages only a run whose notebook 04 finished, and only
+the run folder's new and changed files that git keeps (never the files --fresh deleted, never ignored ones such as
+checkpoints); `finish` refuses a clone at another commit or with files of its own in the run folder. (The whole
+save-then-finish path on a real run: the ci profile, checked by hand, see the script's commit.)"""
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPT = ROOT / "scripts" / "reference_stage.sh"
+R = "results/cpu-toy"
+
+
+def git(repo, *args):
+    return subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True, text=True).stdout
+
+
+def stage(main, step, clone):
+    return subprocess.run(["bash", str(main / "scripts" / "reference_stage.sh"), step, str(clone)],
+                          capture_output=True, text=True, env={"PATH": "/usr/bin:/bin", "D": "toy"})
+
+
+@pytest.fixture
+def repos(tmp_path):
+    """A checkout holding the script, and a clone whose run folder has a committed old reference."""
+    main, clone = tmp_path / "main", tmp_path / "clone"
+    (main / "scripts").mkdir(parents=True)
+    shutil.copy(SCRIPT, main / "scripts")
+    clone.mkdir()
+    git(clone, "init", "-q")
+    git(clone, "config", "user.email", "t@t")
+    git(clone, "config", "user.name", "t")
+    run = clone / R
+    run.mkdir(parents=True)
+    (clone / ".gitignore").write_text("results/*/train_*/checkpoint.pt\n")
+    for name in ("model.hbeo", "old_ablation.json", "unchanged.csv"):
+        (run / name).write_text("old " + name)
+    git(clone, "add", ".")
+    git(clone, "commit", "-qm", "old reference")
+    # the new run: --fresh removed an ablation's file, notebooks 01-04 rewrote the model and wrote new files
+    (run / "old_ablation.json").unlink()
+    (run / "model.hbeo").write_text("new model")
+    (run / "04_options.csv").write_text("new table")
+    (run / "train_model").mkdir()
+    (run / "train_model" / "train_log.csv").write_text("epoch\n1\n")
+    (run / "train_model" / "checkpoint.pt").write_text("ignored")
+    return main, clone
+
+
+def manifest(clone, notebooks):
+    commit = git(clone, "rev-parse", "HEAD").strip()
+    m = {"profile": "cpu", "dataset": "toy", "git_commit": commit, "git_tag": "t1", "git_dirty": False,
+         "notebooks": {n: {"wall_s": 1.0, "finished_utc": "2026-12-01T00:00:00+00:00"} for n in notebooks}}
+    (clone / R / "manifest.json").write_text(json.dumps(m))
+    return commit
+
+
+def test_save_refuses_a_run_whose_training_notebook_did_not_finish(repos):
+    main, clone = repos
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render"])
+    out = stage(main, "save", clone)
+    assert out.returncode != 0 and "notebook 04 has not finished" in out.stderr
+    assert not (main / f"{R}-stage").exists()
+
+
+def test_save_stages_the_changed_files_git_keeps_and_nothing_else(repos):
+    main, clone = repos
+    commit = manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train"])
+    out = stage(main, "save", clone)
+    assert out.returncode == 0, out.stderr
+    st = main / f"{R}-stage"
+    got = sorted(str(p.relative_to(st)) for p in st.rglob("*") if p.is_file())
+    assert got == ["04_options.csv", "STAGE.md", "manifest.json", "model.hbeo", "train_model/train_log.csv"]
+    assert (st / "model.hbeo").read_text() == "new model"
+    assert commit in (st / "STAGE.md").read_text() and "| 04_train | 1.0 |" in (st / "STAGE.md").read_text()
+
+
+def test_save_refuses_a_run_that_already_ran_its_last_notebooks(repos):
+    main, clone = repos
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train", "05_classification"])
+    out = stage(main, "save", clone)
+    assert out.returncode != 0 and "land the run instead" in out.stderr
+
+
+def test_finish_refuses_a_clone_at_another_commit_or_with_files_in_the_run_folder(repos):
+    main, clone = repos
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train"])
+    assert stage(main, "save", clone).returncode == 0
+    fresh = clone.parent / "fresh"
+    git(clone.parent, "clone", "-q", str(clone), str(fresh))
+    (fresh / "x").write_text("a later commit")
+    git(fresh, "add", "x")
+    git(fresh, "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "later")
+    out = stage(main, "finish", fresh)
+    assert out.returncode != 0 and "is not at the run's commit" in out.stderr
+    git(fresh, "checkout", "-q", "HEAD~1")
+    (fresh / R / "stray.json").write_text("{}")
+    out = stage(main, "finish", fresh)
+    assert out.returncode != 0 and "not a clean clone" in out.stderr
