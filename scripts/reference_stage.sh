@@ -8,8 +8,9 @@
 # repository's history grows by nothing more); no checkpoint is staged: notebook 04 must have finished.
 #
 #   save CLONE     (session 1, after `make reproduce PROFILE=$P DATASET=$D` in CLONE finished notebook 04)
-#                  copies the run folder's new and changed files that git does not ignore, and model.hbeo, to
-#                  $R-stage/ in this checkout, with STAGE.md saying what they are. Commit that folder.
+#                  copies the run folder's files that the clone's commit does not hold as they are now, less what
+#                  this checkout's .gitignore keeps out of a stage folder (checkpoints, renderings, grids, subspace,
+#                  the option models), to $R-stage/ here, with STAGE.md saying what they are. Commit that folder.
 #   finish CLONE   (session 2, CLONE a new clean clone at the manifest's git_commit) empties the clone's run folder
 #                  of models and metrics (as --fresh does), copies the stage into it, writes the run's subspace from
 #                  model.hbeo's own basis (notebook 02 is not run again: a subspace fitted again must not differ
@@ -19,15 +20,18 @@
 #                  scripts/reference_run.sh's steps after the run (SKIP_RUN=1). The manifest then holds 01-04's
 #                  wall times from session 1 and 05-08's from session 2, all at one commit.
 #   Then land the clone's run folder as scripts/reference_run.sh step 4 says, and `git rm -r $R-stage`.
-# Usage: bash scripts/reference_stage.sh save|finish CLONE   (run from this checkout; P=PROFILE, D=DATASET: default cpu,
-# modelnet10-vox30; AFTER=0: not reference_run.sh's steps after the run (another run than the reference); HBEO_VOX30
-# as for the run)
+# The same for a training seed's run (scripts/seed_runs.sh: `make reproduce SEED=S`, results/cpu-$D-seedS, its
+# stage $R-stage): SEED=S, and without reference_run.sh's later steps (they score the reference's model); its
+# model.hbeo, staged, then lands with the run.
+# Usage: bash scripts/reference_stage.sh save|finish CLONE   (run from this checkout; P=PROFILE, D=DATASET, SEED:
+# default cpu, modelnet10-vox30, 0; AFTER=0: not reference_run.sh's later steps; HBEO_VOX30 as for the run)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 MAIN=$PWD
 P=${P:-cpu}
 D=${D:-modelnet10-vox30}
-R=results/$P-$D
+SEED=${SEED:-0}
+R=results/$P-$D$([ "$SEED" = 0 ] || echo "-seed$SEED")
 S=$R-stage
 [ $# = 2 ] || { echo "usage: bash scripts/reference_stage.sh save|finish CLONE" >&2; exit 2; }
 CLONE=$(cd "$2" && pwd)
@@ -46,10 +50,16 @@ save)
     || die "$CLONE: its code differs from its commit"
   rm -rf "$S" && mkdir -p "$S"
   n=0
-  while IFS= read -r f; do
-    [ -f "$CLONE/$f" ] || continue                 # deleted by --fresh: the previous reference's, not staged
+  # every file of the run folder that the clone's commit does not hold as it is now (a file --fresh deleted, the
+  # previous reference's, is not there), less what this checkout's .gitignore keeps out of the stage folder (the
+  # run folder's rules: checkpoints, renderings, grids, subspace, the option models)
+  while IFS= read -r -d '' f; do
+    if git -C "$CLONE" ls-files --error-unmatch -- "$f" >/dev/null 2>&1 && git -C "$CLONE" diff --quiet -- "$f"; then
+      continue
+    fi
+    git check-ignore -q --no-index -- "$S/${f#$R/}" && continue
     mkdir -p "$S/$(dirname "${f#$R/}")" && cp -p "$CLONE/$f" "$S/${f#$R/}" && n=$((n + 1))
-  done < <(git -C "$CLONE" ls-files -m -o --exclude-standard -- "$R")
+  done < <(cd "$CLONE" && find "$R" -type f -print0 | sort -z)
   [ -f "$S/model.hbeo" ] || die "$src/model.hbeo was not among the changed files"
   python3 - "$src/manifest.json" "$S/STAGE.md" "$n" <<'PY'
 import json, sys
@@ -86,8 +96,8 @@ for p in clear_products('$R'): print('[stage] removed', p)"
 HBEO.load('$R/model.hbeo').subspace.save('$R/subspace.npz')"
   $PY -m hbeo voxelize --profile $P --dataset $D --out $R
   $PY -m hbeo render --profile $P --dataset $D --out $R --split train --quiet
-  $PY -m hbeo reproduce --profile $P --dataset $D --only 05 06 07 08
-  [ "${AFTER:-1}" = 0 ] || SKIP_RUN=1 bash scripts/reference_run.sh $PY
+  $PY -m hbeo reproduce --profile $P --dataset $D --seed $SEED --only 05 06 07 08
+  [ "${AFTER:-1}" = 0 ] || [ "$SEED" != 0 ] || SKIP_RUN=1 bash scripts/reference_run.sh $PY
   ;;
 *) die "unknown step $1 (save or finish)" ;;
 esac

@@ -18,17 +18,34 @@ def git(repo, *args):
     return subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True, text=True).stdout
 
 
-def stage(main, step, clone):
+def stage(main, step, clone, seed=0):
     return subprocess.run(["bash", str(main / "scripts" / "reference_stage.sh"), step, str(clone)],
-                          capture_output=True, text=True, env={"PATH": "/usr/bin:/bin", "D": "toy"})
+                          capture_output=True, text=True, env={"PATH": "/usr/bin:/bin", "D": "toy", "SEED": str(seed)})
+
+
+def new_run(run):
+    """What notebooks 01-04 leave: the model rewritten, new tables, a training log, and files the stage never holds."""
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "model.hbeo").write_text("new model")
+    (run / "04_options.csv").write_text("new table")
+    (run / "train_model").mkdir()
+    (run / "train_model" / "train_log.csv").write_text("epoch\n1\n")
+    (run / "train_model" / "checkpoint.pt").write_text("a checkpoint")
+    (run / "model_opt_paper.hbeo").write_text("an option's model")
+    (run / "render_train").mkdir()
+    (run / "render_train" / "shard.npz").write_text("renderings")
+    (run / "subspace.npz").write_text("basis")
 
 
 @pytest.fixture
 def repos(tmp_path):
-    """A checkout holding the script, and a clone whose run folder has a committed old reference."""
+    """A checkout holding the script and the project's .gitignore, and a clone whose run folder has a committed
+    old reference."""
     main, clone = tmp_path / "main", tmp_path / "clone"
     (main / "scripts").mkdir(parents=True)
     shutil.copy(SCRIPT, main / "scripts")
+    shutil.copy(ROOT / ".gitignore", main)
+    git(main, "init", "-q")
     clone.mkdir()
     git(clone, "init", "-q")
     git(clone, "config", "user.email", "t@t")
@@ -40,21 +57,16 @@ def repos(tmp_path):
         (run / name).write_text("old " + name)
     git(clone, "add", ".")
     git(clone, "commit", "-qm", "old reference")
-    # the new run: --fresh removed an ablation's file, notebooks 01-04 rewrote the model and wrote new files
-    (run / "old_ablation.json").unlink()
-    (run / "model.hbeo").write_text("new model")
-    (run / "04_options.csv").write_text("new table")
-    (run / "train_model").mkdir()
-    (run / "train_model" / "train_log.csv").write_text("epoch\n1\n")
-    (run / "train_model" / "checkpoint.pt").write_text("ignored")
+    (run / "old_ablation.json").unlink()     # --fresh removed an ablation's file
+    new_run(run)
     return main, clone
 
 
-def manifest(clone, notebooks):
+def manifest(clone, notebooks, run=R):
     commit = git(clone, "rev-parse", "HEAD").strip()
     m = {"profile": "cpu", "dataset": "toy", "git_commit": commit, "git_tag": "t1", "git_dirty": False,
          "notebooks": {n: {"wall_s": 1.0, "finished_utc": "2026-12-01T00:00:00+00:00"} for n in notebooks}}
-    (clone / R / "manifest.json").write_text(json.dumps(m))
+    (clone / run / "manifest.json").write_text(json.dumps(m))
     return commit
 
 
@@ -76,6 +88,19 @@ def test_save_stages_the_changed_files_git_keeps_and_nothing_else(repos):
     assert got == ["04_options.csv", "STAGE.md", "manifest.json", "model.hbeo", "train_model/train_log.csv"]
     assert (st / "model.hbeo").read_text() == "new model"
     assert commit in (st / "STAGE.md").read_text() and "| 04_train | 1.0 |" in (st / "STAGE.md").read_text()
+
+
+def test_save_stages_a_seed_run_whose_folder_git_ignores(repos):
+    main, clone = repos
+    (clone / ".gitignore").write_text("results/*/\n!results/cpu-toy/\n")
+    git(clone, "commit", "-qam", "seed runs ignored")
+    new_run(clone / f"{R}-seed2")
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train"], run=f"{R}-seed2")
+    out = stage(main, "save", clone, seed=2)
+    assert out.returncode == 0, out.stderr
+    st = main / f"{R}-seed2-stage"
+    got = sorted(str(p.relative_to(st)) for p in st.rglob("*") if p.is_file())
+    assert got == ["04_options.csv", "STAGE.md", "manifest.json", "model.hbeo", "train_model/train_log.csv"]
 
 
 def test_save_refuses_a_run_that_already_ran_its_last_notebooks(repos):
