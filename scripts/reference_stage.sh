@@ -48,6 +48,13 @@ save)
   ! finished "$src/manifest.json" 05_classification || die "$src: notebooks 05-08 ran too; land the run instead"
   [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no -- hbeo notebooks scripts Makefile)" ] \
     || die "$CLONE: its code differs from its commit"
+  for f in "$CLONE/$R"/0[5-8]_*.ipynb; do          # a notebook after 04 started (and was stopped): not staged
+    [ -e "$f" ] || continue
+    if ! git -C "$CLONE" ls-files --error-unmatch -- "${f#$CLONE/}" >/dev/null 2>&1 \
+       || ! git -C "$CLONE" diff --quiet -- "${f#$CLONE/}"; then
+      die "$f: notebooks after 04 started there; restore or remove their files first (git checkout / rm)"
+    fi
+  done
   rm -rf "$S" && mkdir -p "$S"
   n=0
   # every file of the run folder that the clone's commit does not hold as it is now (a file --fresh deleted, the

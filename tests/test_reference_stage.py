@@ -103,6 +103,14 @@ def test_save_stages_a_seed_run_whose_folder_git_ignores(repos):
     assert got == ["04_options.csv", "STAGE.md", "manifest.json", "model.hbeo", "train_model/train_log.csv"]
 
 
+def test_save_refuses_a_run_whose_notebook_05_started(repos):
+    main, clone = repos
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train"])
+    (clone / R / "05_classification.ipynb").write_text("papermill's first write")
+    out = stage(main, "save", clone)
+    assert out.returncode != 0 and "notebooks after 04 started" in out.stderr
+
+
 def test_save_refuses_a_run_that_already_ran_its_last_notebooks(repos):
     main, clone = repos
     manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train", "05_classification"])
