@@ -11,7 +11,12 @@
 # train_model/provenance.json records resumed_from_step (the last step: nothing is trained again; the training log
 # is written from the checkpoint's history). Without CKPT2
 # seed 2 trains from scratch as seed 1 does (about 3.5 h each on 2 cores, the whole run about 5 h).
-# A run cut off by a session's end goes on with RESUME=1 (finished notebooks are skipped, training resumes).
+# A run cut off by a session's end goes on with RESUME=1 (finished notebooks are skipped, training resumes), if the
+# machine kept the clone. Sessions that keep nothing (the rule since 2026-12-01: a new machine each time, and a seed's
+# run takes ~4.5 h on 2 cores) make each seed's run in two, as the reference run is made: in a clean clone at a tag,
+# `make reproduce PROFILE=cpu DATASET=$D SEED=S` stopped once notebook 04 is done, `SEED=S bash
+# scripts/reference_stage.sh save CLONE` and commit the stage; next session `SEED=S bash scripts/reference_stage.sh
+# finish CLONE2`; then the seed table below. (The seed-2 checkpoint CKPT2 was meant for was lost with its machine.)
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
