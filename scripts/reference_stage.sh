@@ -92,6 +92,10 @@ finish)
   [ "$(git -C "$CLONE" rev-parse HEAD)" = "$commit" ] || die "$CLONE is not at the run's commit $commit"
   [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no)$(git -C "$CLONE" ls-files -o -- "$R")" ] \
     || die "$CLONE is not a clean clone (changed files, or files in $R)"
+  tag=$(python3 -c "import json; print(json.load(open('$S/manifest.json'))['git_tag'] or '')")
+  if [ -n "$tag" ] && ! git -C "$CLONE" rev-parse -q --verify "refs/tags/$tag" >/dev/null; then
+    git -C "$CLONE" tag "$tag" "$commit"             # tags do not survive a session: the manifest keeps its tag
+  fi
   cd "$CLONE"
   PY=.venv/bin/python
   make setup

@@ -133,3 +133,10 @@ def test_finish_refuses_a_clone_at_another_commit_or_with_files_in_the_run_folde
     (fresh / R / "stray.json").write_text("{}")
     out = stage(main, "finish", fresh)
     assert out.returncode != 0 and "not a clean clone" in out.stderr
+    # a clean clone at the commit passes the checks and gets the manifest's tag back (tags do not survive a
+    # session); the toy clone then stops at `make setup`, having no Makefile
+    (fresh / R / "stray.json").unlink()
+    assert "t1" not in git(fresh, "tag")
+    out = stage(main, "finish", fresh)
+    assert out.returncode != 0 and "reference_stage.sh:" not in out.stderr
+    assert git(fresh, "tag").split() == ["t1"] and git(fresh, "rev-parse", "t1^{commit}") == git(fresh, "rev-parse", "HEAD")
