@@ -72,15 +72,17 @@ save)
 import json, sys
 m = json.load(open(sys.argv[1]))
 nb = m["notebooks"]
-lines = [f"# A reference run in progress: notebooks 01-04 of `{m['git_tag'] or m['git_commit']}`", "",
-         f"Made by `make reproduce PROFILE={m['profile']} DATASET={m['dataset']}` in a clean clone at commit "
+seed = (m.get("seeds") or {}).get("training", 0)
+env, make_seed = (f"SEED={seed} ", f" SEED={seed}") if seed else ("", "")
+lines = [f"# A run in progress: notebooks 01-04 of `{m['git_tag'] or m['git_commit']}`", "",
+         f"Made by `make reproduce PROFILE={m['profile']} DATASET={m['dataset']}{make_seed}` in a clean clone at commit "
          f"`{m['git_commit']}`{f' (tag `' + m['git_tag'] + '`)' if m['git_tag'] else ''}, git_dirty "
          f"{str(m['git_dirty']).lower()}; {sys.argv[3]} files, "
          "staged by `bash scripts/reference_stage.sh save CLONE` because the run does not fit one session.", "",
          "| notebook | wall s | finished (UTC) |", "| --- | ---: | --- |"]
 lines += [f"| {k} | {v['wall_s']} | {v['finished_utc']} |" for k, v in nb.items()]
 lines += ["", "Not a result yet: notebooks 05-08 have not run. The next session finishes the run from these files "
-          f"(`git clone`, `git checkout {m['git_commit']}`, `bash scripts/reference_stage.sh finish CLONE`), lands it "
+          f"(`git clone`, `git checkout {m['git_commit']}`, `{env}bash scripts/reference_stage.sh finish CLONE`), lands it "
           "and removes this folder.", ""]
 open(sys.argv[2], "w").write("\n".join(lines))
 PY
