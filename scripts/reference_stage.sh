@@ -5,18 +5,24 @@
 # clone at a tagged commit, and their products are committed to a stage folder ($R-stage); the next session finishes
 # the same run from them, in a new clean clone at the same commit. Nothing is staged that would not be committed when
 # the run lands (the executed notebooks, tables, figures, training logs and model.hbeo: the same bytes, so the
-# repository's history grows by nothing more); no checkpoint is staged: notebook 04 must have finished.
+# repository's history grows by nothing more); no checkpoint is staged unless notebook 04 was stopped after HBEONet's
+# training finished (CHECKPOINT=1 below).
 #
 #   save CLONE     (session 1, after `make reproduce PROFILE=$P DATASET=$D` in CLONE finished notebook 04)
 #                  copies the run folder's files that the clone's commit does not hold as they are now, less what
 #                  this checkout's .gitignore keeps out of a stage folder (checkpoints, renderings, grids, subspace,
 #                  the option models), to $R-stage/ here, with STAGE.md saying what they are. Commit that folder.
+#                  CHECKPOINT=1, when notebook 04 had to be stopped after HBEONet's 60 epochs finished but before
+#                  its option trainings and evaluation (~15 min): HBEONet's final checkpoint is staged as well
+#                  (~70 MB, `git add -f`: the one staged file the landed run does not keep), notebook 04's own later
+#                  products are not, and finish runs notebook 04 again (it trains nothing: the checkpoint is final).
 #   finish CLONE   (session 2, CLONE a new clean clone at the manifest's git_commit) empties the clone's run folder
 #                  of models and metrics (as --fresh does), copies the stage into it, writes the run's subspace from
 #                  model.hbeo's own basis (notebook 02 is not run again: a subspace fitted again must not differ
 #                  from the one HBEONet was trained with), rebuilds the grids and the rendered training set that
 #                  notebooks 01 and 03 made (ignored files; `hbeo voxelize`, `hbeo render`: the same settings, the
-#                  same bytes), runs notebooks 05-08 (`reproduce --only`, which writes REPRODUCTION.md), then
+#                  same bytes), runs notebooks 05-08 (04-08 after CHECKPOINT=1; `reproduce --only`, which writes
+#                  REPRODUCTION.md), then
 #                  scripts/reference_run.sh's steps after the run (SKIP_RUN=1). The manifest then holds 01-04's
 #                  wall times from session 1 and 05-08's from session 2, all at one commit.
 #   Then land the clone's run folder as scripts/reference_run.sh step 4 says, and `git rm -r $R-stage`.
@@ -44,7 +50,23 @@ case $1 in
 save)
   src=$CLONE/$R
   [ -f "$src/manifest.json" ] || die "$src/manifest.json: no run there"
-  finished "$src/manifest.json" 04_train || die "$src: notebook 04 has not finished (its checkpoints are not staged)"
+  skip=""                                            # files not staged: a regex on paths in the run folder
+  if ! finished "$src/manifest.json" 04_train; then
+    # CHECKPOINT=1: HBEONet's training finished and notebook 04 was stopped after it (its two option trainings and
+    # its evaluation take ~15 min more): its final checkpoint is staged too (~70 MB, the one file the landed run
+    # does not keep), so that notebook 04, run again at the same commit, trains nothing and goes on from there
+    [ "${CHECKPOINT:-0}" = 1 ] || die "$src: notebook 04 has not finished (CHECKPOINT=1 stages HBEONet's final checkpoint when only its training has)"
+    python3 - "$src" <<'PY' || die "$src: HBEONet's training has not finished: nothing to stage"
+import csv, json, sys
+from pathlib import Path
+run = Path(sys.argv[1])
+epochs = json.loads((run / "manifest.json").read_text())["profile_settings"]["epochs"]
+log = list(csv.DictReader(open(run / "train_model" / "train_log.csv")))
+sys.exit(not ((run / "model.hbeo").is_file() and (run / "train_model" / "checkpoint.pt").is_file()
+              and log and int(log[-1]["epoch"]) == epochs and (run / "train_model" / "provenance.json").is_file()))
+PY
+    skip='^(04_|train_model_opt_)'                      # notebook 04's later products: remade when it runs again
+  fi
   ! finished "$src/manifest.json" 05_classification || die "$src: notebooks 05-08 ran too; land the run instead"
   [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no -- hbeo notebooks scripts Makefile)" ] \
     || die "$CLONE: its code differs from its commit"
@@ -64,7 +86,9 @@ save)
     if git -C "$CLONE" ls-files --error-unmatch -- "$f" >/dev/null 2>&1 && git -C "$CLONE" diff --quiet -- "$f"; then
       continue
     fi
-    git check-ignore -q --no-index -- "$S/${f#$R/}" && continue
+    [ -n "$skip" ] && [[ ${f#$R/} =~ $skip ]] && continue
+    [ -n "$skip" ] && [ "${f#$R/}" = train_model/checkpoint.pt ] \
+      || { git check-ignore -q --no-index -- "$S/${f#$R/}" && continue; }
     mkdir -p "$S/$(dirname "${f#$R/}")" && cp -p "$CLONE/$f" "$S/${f#$R/}" && n=$((n + 1))
   done < <(cd "$CLONE" && find "$R" -type f -print0 | sort -z)
   [ -f "$S/model.hbeo" ] || die "$src/model.hbeo was not among the changed files"
@@ -74,14 +98,19 @@ m = json.load(open(sys.argv[1]))
 nb = m["notebooks"]
 seed = (m.get("seeds") or {}).get("training", 0)
 env, make_seed = (f"SEED={seed} ", f" SEED={seed}") if seed else ("", "")
-lines = [f"# A run in progress: notebooks 01-04 of `{m['git_tag'] or m['git_commit']}`", "",
+lines = [f"# A run in progress: the first notebooks of `{m['git_tag'] or m['git_commit']}`", "",
          f"Made by `make reproduce PROFILE={m['profile']} DATASET={m['dataset']}{make_seed}` in a clean clone at commit "
          f"`{m['git_commit']}`{f' (tag `' + m['git_tag'] + '`)' if m['git_tag'] else ''}, git_dirty "
          f"{str(m['git_dirty']).lower()}; {sys.argv[3]} files, "
          "staged by `bash scripts/reference_stage.sh save CLONE` because the run does not fit one session.", "",
          "| notebook | wall s | finished (UTC) |", "| --- | ---: | --- |"]
 lines += [f"| {k} | {v['wall_s']} | {v['finished_utc']} |" for k, v in nb.items()]
-lines += ["", "Not a result yet: notebooks 05-08 have not run. The next session finishes the run from these files "
+last = "04" if "04_train" in nb else "03"
+if last == "03":
+    lines += ["", "Notebook 04 was stopped after HBEONet's training finished (its option trainings and evaluation had not "
+              "run): `train_model/checkpoint.pt` is that training's final checkpoint (added with `git add -f`), from "
+              "which notebook 04, run again at the same commit, trains nothing (provenance.json: resumed_from_step)."]
+lines += ["", f"Not a result yet: notebooks {int(last) + 1:02d}-08 have not run. The next session finishes the run from these files "
           f"(`git clone`, `git checkout {m['git_commit']}`, `{env}bash scripts/reference_stage.sh finish CLONE`), lands it "
           "and removes this folder.", ""]
 open(sys.argv[2], "w").write("\n".join(lines))
@@ -109,7 +138,8 @@ for p in clear_products('$R'): print('[stage] removed', p)"
 HBEO.load('$R/model.hbeo').subspace.save('$R/subspace.npz')"
   $PY -m hbeo voxelize --profile $P --dataset $D --out $R
   $PY -m hbeo render --profile $P --dataset $D --out $R --split train --quiet
-  $PY -m hbeo reproduce --profile $P --dataset $D --seed $SEED --only 05 06 07 08
+  if finished "$MAIN/$S/manifest.json" 04_train; then todo="05 06 07 08"; else todo="04 05 06 07 08"; fi
+  $PY -m hbeo reproduce --profile $P --dataset $D --seed $SEED --only $todo
   [ "${AFTER:-1}" = 0 ] || [ "$SEED" != 0 ] || SKIP_RUN=1 bash scripts/reference_run.sh $PY
   ;;
 *) die "unknown step $1 (save or finish)" ;;

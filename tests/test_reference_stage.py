@@ -18,9 +18,10 @@ def git(repo, *args):
     return subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True, text=True).stdout
 
 
-def stage(main, step, clone, seed=0):
+def stage(main, step, clone, seed=0, **env):
     return subprocess.run(["bash", str(main / "scripts" / "reference_stage.sh"), step, str(clone)],
-                          capture_output=True, text=True, env={"PATH": "/usr/bin:/bin", "D": "toy", "SEED": str(seed)})
+                          capture_output=True, text=True,
+                          env={"PATH": "/usr/bin:/bin", "D": "toy", "SEED": str(seed), **env})
 
 
 def new_run(run):
@@ -109,6 +110,30 @@ def test_save_refuses_a_run_whose_notebook_05_started(repos):
     (clone / R / "05_classification.ipynb").write_text("papermill's first write")
     out = stage(main, "save", clone)
     assert out.returncode != 0 and "notebooks after 04 started" in out.stderr
+
+
+def test_save_with_checkpoint_stages_a_finished_training_of_a_stopped_notebook_04(repos):
+    main, clone = repos
+    run = clone / R
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render"])
+    m = json.loads((run / "manifest.json").read_text())
+    m["profile_settings"] = {"epochs": 2}
+    (run / "manifest.json").write_text(json.dumps(m))
+    (run / "train_model" / "provenance.json").write_text("{}")
+    (run / "train_model_opt_paper").mkdir()
+    (run / "train_model_opt_paper" / "train_log.csv").write_text("epoch\n")    # an option's training, stopped
+    env = {"CHECKPOINT": "1"}
+    out = stage(main, "save", clone, **env)
+    assert out.returncode != 0 and "training has not finished" in out.stderr      # the log stops at epoch 1 of 2
+    (run / "train_model" / "train_log.csv").write_text("epoch\n1\n2\n")
+    assert "CHECKPOINT=1" in stage(main, "save", clone).stderr                   # not without asking
+    out = stage(main, "save", clone, **env)
+    assert out.returncode == 0, out.stderr
+    st = main / f"{R}-stage"
+    got = sorted(str(p.relative_to(st)) for p in st.rglob("*") if p.is_file())
+    assert got == ["STAGE.md", "manifest.json", "model.hbeo", "train_model/checkpoint.pt",
+                   "train_model/provenance.json", "train_model/train_log.csv"]     # not 04_options.csv
+    assert "notebooks 04-08 have not run" in (st / "STAGE.md").read_text()
 
 
 def test_save_refuses_a_run_that_already_ran_its_last_notebooks(repos):
