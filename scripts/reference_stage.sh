@@ -42,6 +42,9 @@ S=$R-stage
 [ $# = 2 ] || { echo "usage: bash scripts/reference_stage.sh save|finish CLONE" >&2; exit 2; }
 CLONE=$(cd "$2" && pwd)
 die() { echo "reference_stage.sh: $*" >&2; exit 1; }
+unchanged() {  # unchanged PATH: the clone's commit holds the file at PATH (relative to the clone) as it is now
+  git -C "$CLONE" ls-files --error-unmatch -- "$1" >/dev/null 2>&1 && git -C "$CLONE" diff --quiet -- "$1"
+}
 finished() {   # finished MANIFEST NOTEBOOK: the manifest records that notebook's wall time
   python3 -c "import json, sys; sys.exit('$2' not in json.load(open('$1')).get('notebooks', {}))"
 }
@@ -72,10 +75,7 @@ PY
     || die "$CLONE: its code differs from its commit"
   for f in "$CLONE/$R"/0[5-8]_*.ipynb; do          # a notebook after 04 started (and was stopped): not staged
     [ -e "$f" ] || continue
-    if ! git -C "$CLONE" ls-files --error-unmatch -- "${f#$CLONE/}" >/dev/null 2>&1 \
-       || ! git -C "$CLONE" diff --quiet -- "${f#$CLONE/}"; then
-      die "$f: notebooks after 04 started there; restore or remove their files first (git checkout / rm)"
-    fi
+    unchanged "${f#$CLONE/}" || die "$f: notebooks after 04 started there; restore or remove their files first (git checkout / rm)"
   done
   rm -rf "$S" && mkdir -p "$S"
   n=0
@@ -83,9 +83,7 @@ PY
   # previous reference's, is not there), less what this checkout's .gitignore keeps out of the stage folder (the
   # run folder's rules: checkpoints, renderings, grids, subspace, the option models)
   while IFS= read -r -d '' f; do
-    if git -C "$CLONE" ls-files --error-unmatch -- "$f" >/dev/null 2>&1 && git -C "$CLONE" diff --quiet -- "$f"; then
-      continue
-    fi
+    unchanged "$f" && continue
     [ -n "$skip" ] && [[ ${f#$R/} =~ $skip ]] && continue
     [ -n "$skip" ] && [ "${f#$R/}" = train_model/checkpoint.pt ] \
       || { git check-ignore -q --no-index -- "$S/${f#$R/}" && continue; }
