@@ -275,6 +275,17 @@ if clears_bar v40 $B; then
     done
   fi
 fi
+# 4n. (issue 29 item 5) the reference run regenerated with the profile 4k and 4l chose ((1024, 512, 512), 60 epochs):
+#     a clean clone at the tag repro-cpu-2026-12-01-e60 (commit 78a8306), `make reproduce PROFILE=cpu DATASET=$D`,
+#     made over two sessions since a session keeps nothing outside what lands and the run takes ~4.5 h on 2 cores:
+#     notebooks 01-04 on 2026-12-01 (stopped after 04; `bash scripts/reference_stage.sh save CLONE`, commit 0ddfc62),
+#     05-08 and reference_run.sh's later steps on 2026-12-02 (`bash scripts/reference_stage.sh finish CLONE` in a new
+#     clean clone at the same commit). Its model is 4l's recipe with training seed 0, trained again (4l's seed-0 model
+#     file was lost). Landing, in the checkout: the previous reference's files retired (`python
+#     scripts/retire_reference.py --old ref --new bal30 --label "tag repro-cpu-2026-11-26-bal, commit aa98863"`;
+#     the commands of steps 1-4m above that read eval_*-ref*.json now find those files in docs/history/ under
+#     -bal30), the clone's new run files copied in, the model table's three rows of the new reference added
+#     (`python scripts/reference_rows.py`), then step 5.
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'

@@ -3,7 +3,8 @@
 Two committed run folders each hold the model their `make reproduce` trained:
 
 - ``results/cpu-modelnet10-vox30/`` (`make reproduce PROFILE=cpu DATASET=modelnet10-vox30`: rotation bins,
-  roll augmentation, voxel loss, 30 epochs), scored on every usable ModelNet10 test object (907) x 3 views;
+  roll augmentation, voxel loss, class-balanced sampling, shared layers (1024, 512, 512), 60 epochs), scored on
+  every usable ModelNet10 test object (907) x 3 views;
 - ``results/cpu-procedural/`` (plain `make reproduce`: the default, procedural data and the ``cpu`` profile),
   scored on the procedural test split x 3 views.
 
