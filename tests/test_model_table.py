@@ -196,6 +196,16 @@ def test_each_target_met_or_missed_with_its_gap(tmp_path):
                                               "60.0: missed by 10.0 ms", "14.0"]
 
 
+def test_targets_columns_keep_their_order_whatever_the_rows_order(tmp_path):
+    """A new reference's rows are added after the BEO row (scripts/reference_rows.py): the columns stay
+    one pass, extended, then the unjudged reference, and each keeps its own cells."""
+    rows = _run(tmp_path)
+    before = targets_table(tmp_path)
+    RunDir(tmp_path).model_rows.write_text(json.dumps(rows[::-1]))
+    assert targets_table(tmp_path) == before
+    assert before.splitlines()[0].endswith("| hbeo (`t1.json`) | hbeo+verify (`tv.json`) | beo-known (`b.json`) |")
+
+
 def test_the_one_pass_bar_is_read_from_the_reference_file(tmp_path):
     """A weaker BEO file lowers the bar: the same HBEO figure then meets it; no reference row, no bar."""
     weak = _metrics("test", ALL_X, method="beo", rolls=None)

@@ -56,6 +56,8 @@ REFERENCE = "beo-known"
 #: ``target_role`` of HBEO's one network pass (the paper's inference: no roll averaging, no verify).
 ONE_PASS = "hbeo"
 EXTENDED = "hbeo+verify"
+#: the targets table's column order
+ROLE_ORDER = (ONE_PASS, EXTENDED, REFERENCE)
 N_BOOT = 1000
 #: What must agree between a row's metrics file and a file of another training seed (or the reference row's)
 #: for the two to score the same queries: top-level keys, and the keys of ``request`` where both carry one.
@@ -304,6 +306,8 @@ def targets_table(run) -> str:
     unjudged; ``–`` where a target does not apply to a role."""
     run = RunDir.of(run)
     rows = [r for r in _rows(run) if r.get("target_role") and r.get("test")]
+    # columns in a fixed order, whatever the rows' order in models.json: the judged roles, then the reference
+    rows.sort(key=lambda r: ROLE_ORDER.index(r["target_role"]) if r["target_role"] in ROLE_ORDER else len(ROLE_ORDER))
     evals = [(r, _load(run, r["test"], "test")) for r in rows]
     for r, m in evals:
         _check_role(_path(run, r["test"]), r["target_role"], m)
