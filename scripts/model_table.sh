@@ -286,6 +286,18 @@ fi
 #     the commands of steps 1-4m above that read eval_*-ref*.json now find those files in docs/history/ under
 #     -bal30), the clone's new run files copied in, the model table's three rows of the new reference added
 #     (`python scripts/reference_rows.py`), then step 5.
+# 4o. (issue 29 item 4, written 2026-12-02 03:45 UTC while it trained, before any result) the chosen recipe's training
+#     seed 1 trained again, on the regenerated reference run's own subspace and rendered set (4l's seed-1 model file
+#     was lost and it had been fitted on the basis before hbeo.subspace.vbpca.fix_signs; seed 2 and the reference's
+#     seed 0 are on the rule-signed one): about 110 min alone on a 2-core AVX-512 VM. Its validation file replaces
+#     4l's seed 1 in the reference row's seeds column (4l's stays 4l's row), and the test split follows as 4l's last
+#     clause already decided for the recipe's three seeds (one pass and 4 rolls). Its final checkpoint is the seed-1
+#     run's HBEONet (scripts/seed_runs.sh), so that run trains nothing again.
+$PY -m hbeo train --dataset $D --profile cpu --fc 1024,512,512 --epochs 60 --seed 1 --name model_ref-s1.hbeo \
+    --checkpoint-every 500
+$PY -m hbeo evaluate --model $R/model_ref-s1.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
+    --out $R/eval_val-ref-s1.json
+pair model_ref-s1.hbeo test eval_test-ref-s1
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'
