@@ -17,6 +17,12 @@
 # `make reproduce PROFILE=cpu DATASET=$D SEED=S` stopped once notebook 04 is done, `SEED=S bash
 # scripts/reference_stage.sh save CLONE` and commit the stage; next session `SEED=S bash scripts/reference_stage.sh
 # finish CLONE2`; then the seed table below. (The seed-2 checkpoint CKPT2 was meant for was lost with its machine.)
+# Seed 1 (2026-12-02) was made that way with its HBEONet trained alone first, in the checkout (scripts/model_table.sh
+# 4o: `python -m hbeo train --dataset $D --profile cpu --fc 1024,512,512 --epochs 60 --seed 1 --name
+# model_ref-s1.hbeo`), on the reference run's own subspace and rendered set: in a clean clone at the reference's tag,
+# `python -m hbeo reproduce --profile cpu --dataset $D --seed 1 --only 01 02 03`, that training's final checkpoint
+# copied to $R-seed1/train_model/checkpoint.pt (as CKPT2 above), `... --only 04` (notebook 04 trains nothing from a
+# final checkpoint: provenance.json's resumed_from_step), then `SEED=1 bash scripts/reference_stage.sh save CLONE`.
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
