@@ -22,7 +22,8 @@
 # model_ref-s1.hbeo`), on the reference run's own subspace and rendered set: in a clean clone at the reference's tag,
 # `python -m hbeo reproduce --profile cpu --dataset $D --seed 1 --only 01 02 03`, that training's final checkpoint
 # copied to $R-seed1/train_model/checkpoint.pt (as CKPT2 above), `... --only 04` (notebook 04 trains nothing from a
-# final checkpoint: provenance.json's resumed_from_step), then `SEED=1 bash scripts/reference_stage.sh save CLONE`.
+# final checkpoint: provenance.json's resumed_from_step), then `SEED=1 bash scripts/reference_stage.sh save CLONE`;
+# the same session then ran `... --only 05 06 07 08` in that clone and landed the run (so this loop's seed 1 is done).
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
