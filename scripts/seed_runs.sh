@@ -23,7 +23,8 @@
 # `python -m hbeo reproduce --profile cpu --dataset $D --seed 1 --only 01 02 03`, that training's final checkpoint
 # copied to $R-seed1/train_model/checkpoint.pt (as CKPT2 above), `... --only 04` (notebook 04 trains nothing from a
 # final checkpoint: provenance.json's resumed_from_step), then `SEED=1 bash scripts/reference_stage.sh save CLONE`;
-# the same session then ran `... --only 05 06 07 08` in that clone and landed the run (so this loop's seed 1 is done).
+# the same session then ran `... --only 05 06 07 08` in that clone and landed the run. The loop below still makes
+# every seed it names: run again as it stands, it would make seed 1's run anew from scratch (--fresh).
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
