@@ -155,6 +155,12 @@ def _add_ensemble(p) -> None:
                         "models with the same classes, camera and subspace; repeat for more; each adds a network pass)")
 
 
+def _add_mirror(p) -> None:
+    p.add_argument("--mirror", action="store_true",
+                   help="average HBEO's class answer over each image and its left-right mirror (twice the network "
+                        "passes; pose and shape stay the unmirrored image's; hbeo.model.inference.HBEO.set_mirror)")
+
+
 def _add_prior(p) -> None:
     p.add_argument("--prior-tau", type=float, default=0.0, metavar="TAU",
                    help="prior correction: class logits minus TAU * log(training class prior), TAU in [0, 1] "
@@ -166,7 +172,7 @@ def cmd_predict(args) -> int:
     verify = verify_config(args.verify, args.verify_set)  # bad settings fail before the model is read
     answer = predict_file(args.model, args.depth, args.intrinsics, args.mask, args.depth_scale, args.rolls, verify,
                           args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau,
-                          members=args.ensemble)
+                          members=args.ensemble, mirror=args.mirror)
     for w in answer.warnings:
         print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     r = answer.to_json()
@@ -181,7 +187,7 @@ def cmd_evaluate(args) -> int:
                             sampler=args.sampler, noise=args.noise, per_class=args.per_class, method=args.method,
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
                             max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau,
-                            members=args.ensemble)
+                            members=args.ensemble, mirror=args.mirror)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     print(json.dumps(short, indent=2))
     return 2 if (metrics["failures"] and args.strict) else 0
@@ -338,6 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_verify(p)
     _add_prior(p)
     _add_ensemble(p)
+    _add_mirror(p)
     p = _command(sub, cmd_evaluate, "evaluate", help="render a dataset's views, predict and write the metrics JSON")
     p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
                                                   "every method; baselines live beside it)")
@@ -352,6 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_verify(p)
     _add_prior(p)
     _add_ensemble(p)
+    _add_mirror(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")

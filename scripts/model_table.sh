@@ -309,8 +309,13 @@ pair model_ref-s1.hbeo test eval_test-ref-s1
 #     has a paired 95 % interval of the class mean above 0 (scripts/paired_contrast.py) and training seed 1's model
 #     (results/cpu-modelnet10-vox30-seed1/model.hbeo) gains too (point estimate above 0); only then the test split,
 #     4 rolls + mirror for seeds 0 and 1. One pass + mirror is measured beside (2 passes: not the paper's one-pass HBEO).
+#     Result (2026-12-04, 2-core VM): 4 rolls + mirror minus 4 rolls, class mean +0.6 points [-0.3, +1.7] for seed 0,
+#     -0.3 [-1.4, +0.6] for seed 1: the rule is not met, not adopted, no test files. Beside it: one pass + mirror minus
+#     one pass +1.8 [+0.1, +3.4] (mirror_vs_one_val.json); chosen for nothing.
 $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --mirror --quiet \
     --out $R/eval_val-ref-mirror.json
+$PY scripts/paired_contrast.py $R/eval_val-ref-mirror.json $R/eval_val-ref.json --out $R/mirror_vs_one_val.json \
+    --what "4p (measured beside its rule): the reference model, one pass + mirror averaging of the class minus one pass, validation (397 objects x 3 views)"
 $PY -m hbeo evaluate --model $R/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --mirror --quiet \
     --out $R/eval_val-ref-rolls4-mirror.json
 $PY -m hbeo evaluate --model $R-seed1/model.hbeo --dataset $D --split val --views 3 --seed 0 --rolls 4 --quiet \

@@ -6,7 +6,7 @@ import torch
 
 from hbeo import conventions as C
 from hbeo.data import procedural
-from hbeo.model.augment import RollAugment, roll_depth
+from hbeo.model.augment import RollAugment, mirror_depth, roll_depth
 from hbeo.render.renderer import Renderer, prepare_mesh
 from hbeo.rotations import axis_angle_to_matrix, matrix_to_axis_angle, uniform_so3, z_angle_to_matrix
 
@@ -70,3 +70,37 @@ def test_roll_augment_turns_rotation_and_axis_angle_consistently_and_repeats_wit
         assert (x["depth"][0].numpy() != roll_depth(base[i], K, angle)).mean() < 0.01
     torch.manual_seed(6)
     assert not torch.equal(aug[0]["rotation"], a[0]["rotation"])
+
+
+def test_mirrored_view_matches_rendering_the_mirrored_object_at_the_conjugated_pose(chair_views):
+    """mirror_depth of a view of the object at (R, t) is the view of the object mirrored by F_obj at
+    (F R F_obj, F t), F = diag(-1, 1, 1) in the camera frame, for either mirror plane of the object."""
+    mesh = prepare_mesh(procedural.generate("chair", "train", 0))
+    R = uniform_so3(3, np.random.default_rng(1))
+    t = np.array([[0.02, -0.03, 1.7], [0.0, 0.0, 1.6], [-0.04, 0.02, 1.8]])
+    F = np.diag([-1.0, 1.0, 1.0])
+    base = chair_views[0]
+    for F_obj in (np.diag([-1.0, 1.0, 1.0]), np.diag([1.0, -1.0, 1.0])):
+        mirrored = mesh.copy()
+        T = np.eye(4)
+        T[:3, :3] = F_obj
+        mirrored.apply_transform(T)
+        with Renderer(K) as r:
+            want = r.render_many(mirrored, F @ R @ F_obj, t @ F)
+        for d, w in zip(base, want):
+            got = mirror_depth(d, K)
+            both = (got > 0) & (w > 0)
+            assert ((got > 0) != (w > 0)).sum() <= 0.05 * (w > 0).sum()
+            assert np.median(np.abs(got[both] - w[both])) < 1e-3
+            assert ((d > 0) != (w > 0)).sum() > 5 * ((got > 0) != (w > 0)).sum()   # the unmirrored view does not
+
+
+def test_mirror_twice_is_identity_and_off_centre_columns_fall_out(chair_views):
+    d = chair_views[0][0]
+    assert np.array_equal(mirror_depth(mirror_depth(d, K), K), d)          # cx = (W - 1) / 2
+    assert not np.array_equal(mirror_depth(d, K), d)
+    batch = np.stack(chair_views[0])
+    assert np.array_equal(mirror_depth(batch, K)[1], mirror_depth(batch[1], K))
+    off = C.Intrinsics(K.fx, K.fy, K.cx - 2, K.cy, K.width, K.height)      # 2 cx = 75: columns 76.. leave the frame
+    m = mirror_depth(d, off)
+    assert (m[:, 76:] == 0).all() and np.array_equal(m[:, :76], d[:, 75::-1])

@@ -259,3 +259,19 @@ def test_verify_sweep_scores_every_candidate_on_the_same_queries_and_refuses_the
     assert [r["name"] for r in rows][:2] == ["hbeo", "one class"] and rows[0]["verify"] == "null"
     with pytest.raises(ValueError, match="never on the test split"):
         verify_sweep(model, ds, {"hbeo": None}, split="test", progress=False)
+
+
+def test_evaluate_mirror_averages_only_the_class_and_is_refused_for_a_baseline(trained, tmp_path):
+    args = ("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--per-class", "2",
+            "--quiet")
+    plain, mirror = (run(*args, *extra, "--out", str(tmp_path / f"{name}.json"))
+                     for name, extra in (("plain", ()), ("mirror", ("--mirror",))))
+    assert plain.returncode == 0 and mirror.returncode == 0, mirror.stderr
+    a, b = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("plain", "mirror"))
+    assert a["mirror"] is False and b["mirror"] is True
+    for col in ("pose_deg", "iou", "edt"):                # the rotation and completion are the unmirrored pass's
+        assert a["per_query"][col] == b["per_query"][col], col
+    out = run("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--method", "beo",
+              "--mirror", "--out", str(tmp_path / "beo.json"), "--quiet")
+    assert out.returncode == 2 and "--mirror" in out.stderr and out.stderr.strip().count("\n") == 0
+    assert not (tmp_path / "beo.json").exists()

@@ -82,7 +82,7 @@ def test_method_conformance(boxes, view, factory, pose):
     assert isinstance(m, Method), f"{type(m).__name__} lacks a Method member"
     assert m.name in METHODS and tuple(m.poses) == METHODS[m.name] and pose in m.poses
     extra = m.describe()
-    assert isinstance(extra, dict) and set(extra) <= {"precision", "rolls", "verify", "prior_tau", "class_prior", "ensemble"}
+    assert isinstance(extra, dict) and set(extra) <= {"precision", "rolls", "mirror", "verify", "prior_tau", "class_prior", "ensemble"}
     depth, R, t = view
     before = depth.copy()
     query = dict(R_true=R, t_true=t, object_size=1.0, pose=pose,

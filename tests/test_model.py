@@ -167,6 +167,45 @@ def test_roll_averaging_turns_each_rolls_distribution_back(model):
         m.predict(d, K, rolls=0)
 
 
+class _Lefty(torch.nn.Module):
+    """A network whose class 0 grows with the object's share of pixels left of the image centre (an
+    untrained net's classes barely respond to its input); the rest is the wrapped network's answer."""
+
+    def __init__(self, net):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x):
+        out = dict(self.net(x))
+        filled = (x.float()[:, 0] > 0).float()
+        half = filled.shape[-1] // 2
+        logits = out["logits"].clone()
+        logits[:, 0] += 20 * (filled[..., :half].mean((1, 2)) - filled[..., half:].mean((1, 2)))
+        return {**out, "logits": logits}
+
+
+def test_mirror_averages_the_class_over_the_mirrored_image_and_keeps_pose_and_shape(model):
+    """set_mirror(True): class probabilities are the mean of the network's on each rolled input and on its
+    left-right mirror; rotation, coefficients and completion are exactly those without mirror."""
+    from hbeo.model.augment import mirror_depth
+    m, K = _bins_seed(model, 3), model.intrinsics
+    m._net = _Lefty(m.net)
+    d = np.zeros((K.height, K.width))
+    d[6:18, 4:14] = 1.7
+    d[6:10, 14:28] = 1.9                            # an L: its mirror is another image
+    for rolls in (1, 3):          # not 4: a left-right count like _Lefty's is the same after the 180-degree roll
+        plain = m.set_mirror(False).predict(d, K, rolls=rolls)
+        mir = m.set_mirror(True).predict(d, K, rolls=rolls)
+        other = m.set_mirror(False).predict(mirror_depth(d, K), K, rolls=rolls)
+        assert np.abs(plain.probabilities - other.probabilities).max() > 0.01   # the mirror is seen apart
+        assert np.allclose(mir.probabilities, (plain.probabilities + other.probabilities) / 2, atol=1e-6), rolls
+        assert np.array_equal(mir.rotation, plain.rotation) and np.array_equal(mir.coeffs, plain.coeffs)
+        assert np.array_equal(mir.grids, plain.grids)
+    m.set_mirror(False)
+    with pytest.raises(ValueError, match="True or False"):
+        m.set_mirror("yes")
+
+
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not torch.cuda.is_available(), reason="needs a CUDA GPU"))])
 def test_to_a_device_gives_the_same_answers(model, device):

@@ -7,7 +7,8 @@ Keys of the returned dict (stable; the evaluation notebooks and outside checks r
 ``method`` (``hbeo``, ``beo``, ``icp``, ``voxcnn``), ``pose`` (``known``, ``1dof``, ``3dof``: what
 the method had to estimate), ``given_class`` (the true class was given: accuracy is then 1 by
 construction), ``precision`` (HBEO's network arithmetic, ``float32`` or ``bfloat16``; null for
-the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines),
+the baselines), ``rolls`` (HBEO's test-time roll averaging, 1 = none; null for the baselines), ``mirror`` (HBEO's class
+answer averaged with the mirrored image's, :meth:`hbeo.model.inference.HBEO.set_mirror`; null for the baselines),
 ``prior_tau`` (HBEO's prior correction, :meth:`hbeo.model.inference.HBEO.set_prior_tau`: 0 = none, the
 paper's; null for the baselines), ``class_prior`` (``{tau, source, counts}`` of a correction, else null) and
 ``ensemble`` (the files, ``{file, sha256}``, of the models whose answers HBEO's were averaged with, else null),
@@ -130,11 +131,11 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
     out = summarize(rows, setup.classes, dataset.name, split, views, seed, rs.sampler, noise,
                     len(records) - len(failures))
     out["failures"] = failures
-    extra = {"precision": None, "rolls": None, "verify": None, "prior_tau": None, "class_prior": None,
+    extra = {"precision": None, "rolls": None, "mirror": None, "verify": None, "prior_tau": None, "class_prior": None,
              "ensemble": None, **method.describe()}
     out["verify"] = extra["verify"]
     return {"method": method.name, "pose": pose, "given_class": (method.name, pose) in GIVEN_CLASS,
-            "precision": extra["precision"], "rolls": extra["rolls"], "prior_tau": extra["prior_tau"],
+            "precision": extra["precision"], "rolls": extra["rolls"], "mirror": extra["mirror"], "prior_tau": extra["prior_tau"],
             "class_prior": extra["class_prior"], "ensemble": extra["ensemble"], **out}
 
 

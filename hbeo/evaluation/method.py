@@ -18,7 +18,7 @@ the conformance suite every registered method passes):
     of the truth it may use is the paper's protocol (:mod:`hbeo.baselines.methods`).
 ``describe() -> dict``
     what the metrics dict records of the method's own settings beyond name and pose (HBEO:
-    ``precision``, ``rolls``, ``verify``, ``prior_tau``, ``class_prior`` and ``ensemble``: the files of the
+    ``precision``, ``rolls``, ``mirror``, ``verify``, ``prior_tau``, ``class_prior`` and ``ensemble``: the files of the
     models averaged with it, or None; a baseline: ``{}``).
 
 Preparation is not the loop's: a method arrives ready to answer (a baseline fitted or loaded by
@@ -117,6 +117,7 @@ class HBEOMethod:
                                       "counts": list(self.model.class_counts)}
         members = getattr(self.model, "member_files", None)
         return {"precision": getattr(self.model, "precision", "float32"), "rolls": self.rolls,
+                "mirror": bool(getattr(self.model, "mirror", False)),
                 "verify": verify.to_dict() if verify is not None else None, "prior_tau": tau, "class_prior": prior,
                 "ensemble": list(members) if members else None}
 

@@ -1,4 +1,4 @@
-"""Training-time augmentation that stays exact: rolling the camera about its optical axis.
+"""Augmentation that stays exact: rolling the camera about its optical axis; mirroring the image.
 
 Turning the camera by an angle a about its z axis (OpenCV frame: x right, y down, z forward)
 moves every pixel on a circle about the principal point and leaves every depth value as it
@@ -7,6 +7,13 @@ resampled (nearest pixel) under the 2-D rotation about (cx, cy), and the object'
 becomes Rz(a) R (R: object -> camera). Exact for square pixels (fx == fy) up to the nearest-
 pixel rounding and the image corners (pixels that come from outside the frame are empty).
 Under uniform SO(3) views this gives every training view all of its rolls.
+
+Mirroring the image left-right about the principal point (u -> 2 cx - u) maps every camera point p to
+F p, F = diag(-1, 1, 1): the mirrored image is exactly the view of the mirrored object (its points
+F_obj x) at the proper rotation F R F_obj, for any reflection F_obj of the object frame. The class of a
+ModelNet object is mirror-invariant (a mirrored chair is a chair); its pose and shape are mirrored by
+the class's own mirror plane, which the image does not tell (:func:`mirror_depth`, used by
+:meth:`hbeo.model.inference.HBEO.predict` for the class answer only).
 """
 from __future__ import annotations
 
@@ -36,6 +43,18 @@ def roll_depth(depth: np.ndarray, K: Intrinsics, angle: float) -> np.ndarray:
     ok = (su >= 0) & (su < W) & (sv >= 0) & (sv < H)
     out = np.zeros_like(depth)
     out[ok] = depth[sv[ok], su[ok]]
+    return out
+
+
+def mirror_depth(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
+    """Depth (..., H, W) mirrored left-right about the principal point: pixel (u, v) takes the value at
+    (2 cx - u, v), nearest pixel; 0 where that lies outside the frame (none when cx = (W - 1) / 2).
+    Mirroring twice gives the image back wherever the mirrored column stays inside the frame."""
+    W = depth.shape[-1]
+    su = np.rint(2 * K.cx - np.arange(W)).astype(np.int64)
+    ok = (su >= 0) & (su < W)
+    out = np.zeros_like(depth)
+    out[..., ok] = depth[..., su[ok]]
     return out
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hbeo.model.augment import roll_depth
+from hbeo.model.augment import mirror_depth, roll_depth
 from hbeo.conventions import Intrinsics
 from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
 from hbeo.errors import DataError
@@ -132,6 +132,18 @@ class HBEO:
         self.member_files: list[dict] = []
         self.set_precision(precision)
         self.set_prior_tau(prior_tau)
+        self.set_mirror(False)
+
+    def set_mirror(self, mirror: bool) -> "HBEO":
+        """Test-time mirror averaging of the class answer; returns self. With ``mirror``, :meth:`predict`
+        also runs the network on each (rolled) input mirrored left-right about the principal point
+        (:func:`hbeo.model.augment.mirror_depth`: exactly a view of the mirrored object) and averages the class
+        probabilities over both; the rotation distribution, coefficients and completion stay the unmirrored
+        passes' (the mirror plane that would turn them back is the class's own). Twice the network's cost."""
+        if not isinstance(mirror, (bool, np.bool_)):
+            raise ValueError(f"mirror must be True or False, got {mirror!r}")
+        self.mirror = bool(mirror)
+        return self
 
     def set_prior_tau(self, tau: float, class_counts=None, source: str | None = None) -> "HBEO":
         """Prior correction (logit adjustment) of the class answer; returns self.
@@ -363,11 +375,14 @@ class HBEO:
             part = angles[r0:r0 + step]
             x = np.concatenate([x0 if r0 + k == 0 else np.stack([roll_depth(d, self.intrinsics, a) for d in x0])
                                 for k, a in enumerate(part)])
-            x = torch.from_numpy(x[:, None]).to(self.device, PRECISIONS[self.precision]).contiguous(
-                memory_format=torch.channels_last)
+            xm = self._input(mirror_depth(x, self.intrinsics)) if self.mirror else None   # class answer only
+            x = self._input(x)
             for j, (net, _) in enumerate(nets):
                 tn = time.perf_counter()
                 out = {k: v.float().view(len(part), len(views), -1) for k, v in net(x).items()}
+                if xm is not None:
+                    logits_m = net(xm)["logits"].float().view(len(part), len(views), -1)
+                    prob_sum = prob_sum + torch.softmax(logits_m, dim=2).sum(0)
                 if self.device.type == "cuda":
                     torch.cuda.synchronize(self.device)
                 net_s += time.perf_counter() - tn
@@ -379,7 +394,7 @@ class HBEO:
                     p = torch.softmax(out["pose"].double(), dim=2)
                     P = P + sum(p[k][:, self._roll_permutation(a)] for k, a in enumerate(part))
         t2 = time.perf_counter()
-        probs = self.adjust_probabilities((prob_sum / (rolls * len(nets))).cpu().numpy())
+        probs = self.adjust_probabilities((prob_sum / ((2 if self.mirror else 1) * rolls * len(nets))).cpu().numpy())
         pose_probs = None
         if one:
             R_virtual = self.net.pose_matrix(pose0.double()).cpu().numpy()
@@ -407,6 +422,11 @@ class HBEO:
                           scale, coeffs, grids, {"preprocess": (t2 - t0 - net_s) * 1e3, "network": net_s * 1e3,
                                                  "reconstruct": (t3 - t2) * 1e3, "total": (t3 - t0) * 1e3},
                           warns, np.array([bool(w) for w in warns]), pose_probs, Q)
+
+    def _input(self, x: np.ndarray) -> torch.Tensor:
+        """Model views (N, H, W) as the network's input: (N, 1, H, W) on its device, in its precision."""
+        return torch.from_numpy(x[:, None]).to(self.device, PRECISIONS[self.precision]).contiguous(
+            memory_format=torch.channels_last)
 
     def _check_view(self, v: View, index: int | None) -> list[str]:
         """Warnings (list of str) for one image's model view; DataError when the network's input
