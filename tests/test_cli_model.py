@@ -45,6 +45,12 @@ def test_predict_on_a_16bit_png(trained, tmp_path):
     assert fast.returncode == 0, fast.stderr
     b = json.loads((tmp_path / "b.json").read_text())
     assert b["precision"] == "bfloat16" and np.allclose(b["probabilities"], r["probabilities"], atol=0.05)
+    assert "mirror" not in r
+    mir = run("predict", "--model", str(trained / "model.hbeo"), "--depth", str(tmp_path / "d.png"),
+              "--intrinsics", "65.6,65.6,39.5,29.5", "--mirror", "--out", str(tmp_path / "m.json"))
+    assert mir.returncode == 0, mir.stderr
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["mirror"] is True and m["axis_angle"] == r["axis_angle"] and m["coeffs"] == r["coeffs"]
 
 
 @pytest.mark.parametrize("what, args, msg", [
