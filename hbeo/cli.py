@@ -127,7 +127,8 @@ def cmd_train(args) -> int:
     from hbeo.model.fit import TrainOptions, parse_fc, parse_loss_weights
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
-            "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead")  # TrainOptions' names
+            "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead",
+            "augment_mirror")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
                         **{k: getattr(args, k) for k in same})
@@ -324,6 +325,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--augment-roll", action=argparse.BooleanOptionalAction,
                    help="roll each training view by a random angle about the optical axis every epoch (exact; "
                         "default: the profile's recipe)")
+    p.add_argument("--augment-mirror", action="store_true",
+                   help="mirror each training view left-right with probability 1/2 every epoch, its object across "
+                        "its class's mirror plane (exact; --data memory; default off)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=POSITIVE, help="distance-insensitive input: zoom to this object distance (m)")
     p.add_argument("--seed", type=NONNEG, help="training seed (default 0)")

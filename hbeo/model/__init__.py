@@ -3,7 +3,7 @@
 Owns the network (:mod:`~hbeo.model.network`), the one training loop used by every network of the
 project (:mod:`~hbeo.model.loop`), fitting HBEO from a run folder (:mod:`~hbeo.model.fit`), training images as
 torch datasets (:mod:`~hbeo.model.trainingdata`), the
-exact camera-roll augmentation (:mod:`~hbeo.model.augment`), bringing a user's depth image into the
+exact camera-roll and mirror augmentation (:mod:`~hbeo.model.augment`, :mod:`~hbeo.model.mirror`), bringing a user's depth image into the
 model's camera (:mod:`~hbeo.model.preprocess`), the safe model file and inference
 (:mod:`~hbeo.model.inference`, :mod:`~hbeo.model.modelfile`), reading a user's depth image
 (:mod:`~hbeo.model.depthfile`), checking an answer against the depth (:mod:`~hbeo.model.verify`), one

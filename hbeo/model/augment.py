@@ -13,7 +13,8 @@ F p, F = diag(-1, 1, 1): the mirrored image is exactly the view of the mirrored 
 F_obj x) at the proper rotation F R F_obj, for any reflection F_obj of the object frame. The class of a
 ModelNet object is mirror-invariant (a mirrored chair is a chair); its pose and shape are mirrored by
 the class's own mirror plane, which the image does not tell (:func:`mirror_depth`, used by
-:meth:`hbeo.model.inference.HBEO.predict` for the class answer only).
+:meth:`hbeo.model.inference.HBEO.predict` for the class answer only; in training, where the class is known,
+:mod:`hbeo.model.mirror` mirrors the labels too).
 """
 from __future__ import annotations
 
@@ -94,3 +95,4 @@ def roll_item(item: dict, K: Intrinsics) -> dict:
     item["rotation"] = torch.from_numpy(R.astype(np.float32))
     item["axis_angle"] = torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32))
     return item
+

@@ -142,7 +142,8 @@ class TrainOptions:
     checkpoint_every: also checkpoint every that many steps; loader_workers: DataLoader worker processes
     (0: in this process); render_ahead: ``stream`` data with render backend ``torch``: images rendered in
     one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: up to 2,048 on a GPU as its memory allows, a batch on the
-    CPU); it changes the speed, not the images."""
+    CPU); it changes the speed, not the images; augment_mirror: mirror each training view with probability 1/2,
+    its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.augment.MirrorAugment`)."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -164,6 +165,7 @@ class TrainOptions:
     checkpoint_every: int | None = None
     loader_workers: int = 0
     render_ahead: int | None = None
+    augment_mirror: bool = False
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
@@ -240,7 +242,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
                                                   f"again (notebook 03)")
     settings = settings or RenderSettings.from_profile(prof, backend=opts.backend)
     data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings,
-                         prof.data.val_split, prof.data.twin_iou)
+                         prof.data.val_split, prof.data.twin_iou, opts.augment_mirror)
     cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
                     conv_channels=tuple(prof.network.conv_channels), fc=tuple(opts.fc or prof.network.fc),
                     kernel=prof.network.kernel, rotation=rotation, normalization=opts.normalization)
@@ -250,6 +252,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["val_split"], how["twin_iou"] = prof.data.val_split, prof.data.twin_iou
     if source != "memory":            # memory runs keep the settings (and checkpoints) they always had
         how["source"] = source
+    if opts.augment_mirror:           # runs without it keep the settings (and checkpoints) they had
+        how["augment_mirror"] = True
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
         how["backend"] = "torch"
         if augment_roll:                    # rolls drawn by reading position (render_batch's roll_keys)

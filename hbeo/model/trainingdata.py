@@ -35,6 +35,7 @@ from hbeo.data.datasets import VAL_SEED
 from hbeo.data.gridset import run_gridsets
 from hbeo.model import modelfile
 from hbeo.model.augment import RollAugment, roll_item
+from hbeo.model.mirror import MirrorAugment, mirror_targets
 from hbeo.model.preprocess import to_model_view
 from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
                                         split_objects)
@@ -432,14 +433,16 @@ def _val_mask(run: RunDir, labels, ids, val_fraction: float, val_split: str, twi
 def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_roll: bool = False,
                   progress: bool = True, source: str = "memory", dataset=None, profile=None,
                   settings: RenderSettings | None = None, val_split: str = "object",
-                  twin_iou: float | None = None) -> TrainingData:
+                  twin_iou: float | None = None, augment_mirror: bool = False) -> TrainingData:
     """The run's training images as (training, validation) datasets of the same items, split by
     object (:func:`hbeo.render.torch_datasets.split_by_object` with the fixed
     :data:`hbeo.data.datasets.VAL_SEED`, whatever the training seed: with the default
     ``val_fraction`` the validation objects are :func:`hbeo.data.datasets.validation_records`, on
     which ``evaluate --split val`` scores; ``val_split`` "grouped" holds out whole groups of near-duplicates
     instead, IoU >= ``twin_iou``: :func:`hbeo.data.datasets.validation_mask`); ``augment_roll`` rolls every training
-    view by a random angle each time it is read (:mod:`hbeo.model.augment`). ``source``:
+    view by a random angle each time it is read (:mod:`hbeo.model.augment`); ``augment_mirror`` (data ``memory``
+    only) mirrors every training view with probability 1/2 each time it is read, its object across its class's
+    left-right plane (:mod:`hbeo.model.mirror`, before the roll). ``source``:
 
     ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
     ``shards``  the rendered training set read lazily, :data:`SHARD_MIX` shards in memory at a time,
@@ -460,10 +463,15 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
         mask = _val_mask(run, m.object_labels, m.object_ids, val_fraction, val_split, twin_iou)
         tr_idx, va_idx = split_by_object(m, val_fraction, VAL_SEED, mask)
         train_set = Subset(data, tr_idx)
+        if augment_mirror:
+            axes, mirrored = mirror_targets(run, data, tr_idx, progress)
+            train_set = MirrorAugment(train_set, data.manifest.settings.intrinsics, axes, mirrored)
         if augment_roll:
             train_set = RollAugment(train_set, data.manifest.settings.intrinsics)
         return TrainingData(train_set, Subset(data, va_idx), data.manifest.settings, data.manifest.classes,
                             data.coeff_mean, data.coeff_std, data.manifest, data.labels[tr_idx])
+    if augment_mirror:
+        raise ValueError(f"mirror augmentation needs data 'memory' (the rendered set in memory), not {source!r}")
     if source == "shards":
         shards = DepthShards(run.renders("train"), cache_shards=SHARD_MIX)
         m = shards.manifest
