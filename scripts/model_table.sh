@@ -344,6 +344,10 @@ fi
 #     (eval_val-ref.json, eval_val-ref-s1.json, eval_val-e60-s2.json: 75.9 % and 57.2 %); only then its seeds 1
 #     and 2, and the test split (one pass and 4 rolls, the three seeds) only if their validation means beat those
 #     three seeds' on both.
+#     Run record: seed 0 started 2026-12-04 16:12 UTC in the checkout (commit 3e7bb11), ~690 images/s on a 2-core VM,
+#     on the reference run's grids, subspace and rendered set (ignored files) copied from a clean clone's
+#     `reproduce --seed 2 --only 01 02 03` at the reference's tag: the same basis bytes as model.hbeo's. (That seed-2
+#     run of scripts/seed_runs.sh was stopped in its notebook 04 to free the cores for this; nothing of it landed.)
 $PY -m hbeo train --dataset $D --profile cpu --augment-mirror --seed 0 --name model_mirror.hbeo --checkpoint-every 500
 $PY -m hbeo evaluate --model $R/model_mirror.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
     --out $R/eval_val-mirror.json
