@@ -95,4 +95,3 @@ def roll_item(item: dict, K: Intrinsics) -> dict:
     item["rotation"] = torch.from_numpy(R.astype(np.float32))
     item["axis_angle"] = torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32))
     return item
-

@@ -143,7 +143,7 @@ class TrainOptions:
     (0: in this process); render_ahead: ``stream`` data with render backend ``torch``: images rendered in
     one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: up to 2,048 on a GPU as its memory allows, a batch on the
     CPU); it changes the speed, not the images; augment_mirror: mirror each training view with probability 1/2,
-    its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.augment.MirrorAugment`)."""
+    its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.mirror.MirrorAugment`)."""
 
     epochs: int | None = None
     rotation: str | None = None
