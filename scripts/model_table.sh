@@ -348,6 +348,13 @@ fi
 #     on the reference run's grids, subspace and rendered set (ignored files) copied from a clean clone's
 #     `reproduce --seed 2 --only 01 02 03` at the reference's tag: the same basis bytes as model.hbeo's. (That seed-2
 #     run of scripts/seed_runs.sh was stopped in its notebook 04 to free the cores for this; nothing of it landed.)
+#     Cut off by the end of that session at step 55500 of 67,260 (49 of 60 epochs; ~480-580 images/s, slower than
+#     planned): its checkpoint is committed as train_model_mirror/checkpoint-staged.pt (git add -f, ~70 MB, the one
+#     such file; remove it once the model is trained). To go on: put the reference run's grids, subspace and
+#     rendered set back in $R (a clean clone at tag repro-cpu-2026-12-01-e60, `python -m hbeo reproduce --profile
+#     cpu --dataset $D --only 01 02 03`, copied over: the same bytes), copy the staged file to
+#     train_model_mirror/checkpoint.pt and run the command below again: it resumes exactly (provenance.json:
+#     resumed_from_step).
 $PY -m hbeo train --dataset $D --profile cpu --augment-mirror --seed 0 --name model_mirror.hbeo --checkpoint-every 500
 $PY -m hbeo evaluate --model $R/model_mirror.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
     --out $R/eval_val-mirror.json
