@@ -76,3 +76,16 @@ def test_save_load_round_trip_and_errors(tmp_path):
         GridSet.load(tmp_path / "junk.npz")
     with pytest.raises(DataError, match="no such grid set"):
         GridSet.load(tmp_path / "missing.npz")
+
+
+def test_rows_of_and_grids_of_match_ids_as_strings_and_leave_missing_empty():
+    g = np.zeros((3, 4, 4, 4), bool)
+    g[0, 0, 0, 0] = g[1, 1, 1, 1] = g[2, 2, 2, 2] = True
+    gs = GridSet(g, np.array([0, 1, 1]), np.array(["a", "7", "c"]), ("x", "y"), "train")
+    np.testing.assert_array_equal(gs.rows_of(["c", 7, "zz", "a"]), [2, 1, -1, 0])
+    out = gs.grids_of(["c", "zz", "7"])
+    assert out.shape == (3, 4, 4, 4) and out.dtype == bool
+    assert out[0, 2, 2, 2] and out[0].sum() == 1
+    assert not out[1].any()
+    assert out[2, 1, 1, 1] and out[2].sum() == 1
+    assert gs.grids_of([]).shape == (0, 4, 4, 4)

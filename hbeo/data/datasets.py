@@ -382,16 +382,16 @@ def record_grids(records: list[ObjectRecord], gridset=None) -> np.ndarray:
     :class:`hbeo.data.gridset.GridSet`, e.g. the run's training grids) by id; an object missing from
     it (it failed to voxelize) gets an empty grid (a group of its own). ValueError naming the dataset
     kind when records have no grids and no ``gridset`` is given."""
-    rows = {str(i): k for k, i in enumerate(gridset.ids)} if gridset is not None else None
     out = np.zeros((len(records),) + (C.RESOLUTION,) * 3, bool)
     for k, r in enumerate(records):
         if r.has_grid:
             out[k] = r.grid()
-        elif rows is None:
+        elif gridset is None:
             raise ValueError(f"record_grids: {r.split}/{r.id} has no grid (a mesh dataset); pass the run's "
                              f"training GridSet (RunDir.grids('train'))")
-        elif r.id in rows:
-            out[k] = gridset.grids[rows[r.id]]
+    rest = [k for k, r in enumerate(records) if not r.has_grid]
+    if rest:
+        out[rest] = gridset.grids_of([records[k].id for k in rest])
     return out
 
 

@@ -67,6 +67,19 @@ class GridSet:
         split}`` each (:func:`build_gridset`); empty for a complete set."""
         return list(self.meta.get("failed", []))
 
+    def rows_of(self, ids) -> np.ndarray:
+        """The row of each of ``ids`` in this set (int64 (n,), matched as strings; -1 for an id not here)."""
+        rows = {str(i): k for k, i in enumerate(self.ids)}
+        return np.array([rows.get(str(i), -1) for i in ids], np.int64)
+
+    def grids_of(self, ids) -> np.ndarray:
+        """The grids of ``ids`` by id, bool (n, R, R, R); an id not here (it failed to voxelize) gets an empty
+        grid."""
+        at = self.rows_of(ids)
+        out = np.zeros((len(at),) + self.grids.shape[1:], bool)
+        out[at >= 0] = self.grids[at[at >= 0]]
+        return out
+
     def counts(self) -> dict[str, int]:
         """Objects per class name."""
         return {c: int((self.labels == i).sum()) for i, c in enumerate(self.classes)}

@@ -120,11 +120,11 @@ def mirror_targets(run, data, train_idx, progress: bool = True) -> tuple[tuple[i
     if not path.exists():
         raise DataError(path, "mirror augmentation needs the run's training grids (notebook 01)")
     gs = GridSet.load(path)
-    rows = {str(i): k for k, i in enumerate(gs.ids)}
-    missing = [i for i in m.object_ids if str(i) not in rows]
-    if missing:
-        raise DataError(path, f"{len(missing)} objects of the rendered set have no grid here (first: {missing[0]})")
-    at = np.array([rows[str(i)] for i in m.object_ids], np.int64)
+    at = gs.rows_of(m.object_ids)
+    missing = np.flatnonzero(at < 0)
+    if len(missing):
+        raise DataError(path, f"{len(missing)} objects of the rendered set have no grid here "
+                              f"(first: {m.object_ids[missing[0]]})")
     labels = m.object_labels
     train_objects = np.unique(data.object_index[np.asarray(train_idx)])
     axes = mirror_axes(gs.grids[at[train_objects]], labels[train_objects], len(m.classes))

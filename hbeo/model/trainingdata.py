@@ -422,12 +422,7 @@ def _val_mask(run: RunDir, labels, ids, val_fraction: float, val_split: str, twi
         if not run.grids("train").exists():
             raise DataError(run.grids("train"), "val_split 'grouped' needs the run's training grids (notebook 01)")
         gridset = GridSet.load(run.grids("train"))
-    rows = {str(i): k for k, i in enumerate(gridset.ids)}
-    grids = np.zeros((len(ids),) + gridset.grids.shape[1:], bool)
-    for k, i in enumerate(ids):
-        if str(i) in rows:
-            grids[k] = gridset.grids[rows[str(i)]]
-    return datasets.validation_mask(labels, val_fraction, VAL_SEED, val_split, grids, twin_iou)
+    return datasets.validation_mask(labels, val_fraction, VAL_SEED, val_split, gridset.grids_of(ids), twin_iou)
 
 
 def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_roll: bool = False,
