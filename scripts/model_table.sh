@@ -355,6 +355,10 @@ fi
 #     cpu --dataset $D --only 01 02 03`, copied over: the same bytes), copy the staged file to
 #     train_model_mirror/checkpoint.pt and run the command below again: it resumes exactly (provenance.json:
 #     resumed_from_step).
+#     Resumed so 2026-12-04 18:44-19:13 UTC in the next session (the machine had kept the copied grids, subspace and
+#     rendered set; provenance.json: resumed_from_step 55500); the staged checkpoint then removed. Result (validation,
+#     n = 1,191 queries): class mean 74.2 % < 75.9 %, within 30 deg 58.3 % >= 57.2 %: the rule is not met (both parts
+#     were required), so no seeds 1 and 2 and no test evaluation (eval_val-mirror.json, mirroraug_vs_ref_val.json).
 $PY -m hbeo train --dataset $D --profile cpu --augment-mirror --seed 0 --name model_mirror.hbeo --checkpoint-every 500
 $PY -m hbeo evaluate --model $R/model_mirror.hbeo --dataset $D --split val --views 3 --seed 0 --quiet \
     --out $R/eval_val-mirror.json
