@@ -6,7 +6,7 @@
 # the same run from them, in a new clean clone at the same commit. Nothing is staged that would not be committed when
 # the run lands (the executed notebooks, tables, figures, training logs and model.hbeo: the same bytes, so the
 # repository's history grows by nothing more); no checkpoint is staged unless notebook 04 was stopped after HBEONet's
-# training finished (CHECKPOINT=1 below).
+# training finished or the session ended during it (CHECKPOINT=1 or cut below).
 #
 #   save CLONE     (session 1, after `make reproduce PROFILE=$P DATASET=$D` in CLONE finished notebook 04)
 #                  copies the run folder's files that the clone's commit does not hold as they are now, less what
@@ -16,12 +16,16 @@
 #                  its option trainings and evaluation (~15 min): HBEONet's final checkpoint is staged as well
 #                  (~70 MB, `git add -f`: the one staged file the landed run does not keep), notebook 04's own later
 #                  products are not, and finish runs notebook 04 again (it trains nothing: the checkpoint is final).
+#                  CHECKPOINT=cut, when the session ended during HBEONet's training itself: its latest checkpoint is
+#                  staged (~70 MB, `git add -f`) with subspace.sha256 (the run's subspace.npz), nothing else of
+#                  notebook 04 (no model.hbeo); finish then fits the subspace again (notebook 02's fit, which must
+#                  give the staged bytes, or it stops) and notebook 04 resumes the training from the checkpoint.
 #   finish CLONE   (session 2, CLONE a new clean clone at the manifest's git_commit) empties the clone's run folder
 #                  of models and metrics (as --fresh does), copies the stage into it, writes the run's subspace from
 #                  model.hbeo's own basis (notebook 02 is not run again: a subspace fitted again must not differ
 #                  from the one HBEONet was trained with), rebuilds the grids and the rendered training set that
 #                  notebooks 01 and 03 made (ignored files; `hbeo voxelize`, `hbeo render`: the same settings, the
-#                  same bytes), runs notebooks 05-08 (04-08 after CHECKPOINT=1; `reproduce --only`, which writes
+#                  same bytes), runs notebooks 05-08 (04-08 after CHECKPOINT=1 or cut; `reproduce --only`, which writes
 #                  REPRODUCTION.md), then
 #                  scripts/reference_run.sh's steps after the run (SKIP_RUN=1). The manifest then holds 01-04's
 #                  wall times from session 1 and 05-08's from session 2, all at one commit.
@@ -58,8 +62,13 @@ save)
     # CHECKPOINT=1: HBEONet's training finished and notebook 04 was stopped after it (its two option trainings and
     # its evaluation take ~15 min more): its final checkpoint is staged too (~70 MB, the one file the landed run
     # does not keep), so that notebook 04, run again at the same commit, trains nothing and goes on from there
-    [ "${CHECKPOINT:-0}" = 1 ] || die "$src: notebook 04 has not finished (CHECKPOINT=1 stages HBEONet's final checkpoint when only its training has)"
-    python3 - "$src" <<'PY' || die "$src: HBEONet's training has not finished: nothing to stage"
+    # CHECKPOINT=cut, when even HBEONet's training was cut off (a session's end): its latest checkpoint is staged
+    # (~70 MB, `git add -f`), with the sha256 of the run's subspace.npz, and nothing else of notebook 04 (no
+    # model.hbeo); finish fits the subspace again (it must give those bytes) and notebook 04 resumes the training
+    # exactly from the checkpoint (provenance.json: resumed_from_step)
+    case ${CHECKPOINT:-0} in
+    1)
+      python3 - "$src" <<'PY' || die "$src: HBEONet's training has not finished: nothing to stage (CHECKPOINT=cut stages its latest checkpoint to resume from)"
 import csv, json, sys
 from pathlib import Path
 run = Path(sys.argv[1])
@@ -68,7 +77,13 @@ log = list(csv.DictReader(open(run / "train_model" / "train_log.csv")))
 sys.exit(not ((run / "model.hbeo").is_file() and (run / "train_model" / "checkpoint.pt").is_file()
               and log and int(log[-1]["epoch"]) == epochs and (run / "train_model" / "provenance.json").is_file()))
 PY
-    skip='^(04_|train_model_opt_)'                      # notebook 04's later products: remade when it runs again
+      skip='^(04_|train_model_opt_)' ;;                 # notebook 04's later products: remade when it runs again
+    cut)
+      [ -f "$src/train_model/checkpoint.pt" ] || die "$src: no HBEONet checkpoint (train_model/checkpoint.pt) to resume from"
+      [ -f "$src/subspace.npz" ] || die "$src: no subspace.npz (notebook 02)"
+      skip='^(04_|train_model_opt_|model\.hbeo$|train_model/provenance\.json$)' ;;
+    *) die "$src: notebook 04 has not finished (CHECKPOINT=1 stages HBEONet's final checkpoint when only its training has, CHECKPOINT=cut its latest one when the training was cut off)" ;;
+    esac
   fi
   ! finished "$src/manifest.json" 05_classification || die "$src: notebooks 05-08 ran too; land the run instead"
   [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no -- hbeo notebooks scripts Makefile)" ] \
@@ -89,9 +104,14 @@ PY
       || { git check-ignore -q --no-index -- "$S/${f#$R/}" && continue; }
     mkdir -p "$S/$(dirname "${f#$R/}")" && cp -p "$CLONE/$f" "$S/${f#$R/}" && n=$((n + 1))
   done < <(cd "$CLONE" && find "$R" -type f -print0 | sort -z)
-  [ -f "$S/model.hbeo" ] || die "$src/model.hbeo was not among the changed files"
+  if [ "${CHECKPOINT:-0}" = cut ] && ! finished "$src/manifest.json" 04_train; then
+    (cd "$src" && sha256sum subspace.npz) > "$S/subspace.sha256"
+  else
+    [ -f "$S/model.hbeo" ] || die "$src/model.hbeo was not among the changed files"
+  fi
   python3 - "$src/manifest.json" "$S/STAGE.md" "$n" <<'PY'
-import json, sys
+import csv, json, sys
+from pathlib import Path
 m = json.load(open(sys.argv[1]))
 nb = m["notebooks"]
 seed = (m.get("seeds") or {}).get("training", 0)
@@ -104,7 +124,17 @@ lines = [f"# A run in progress: the first notebooks of `{m['git_tag'] or m['git_
          "| notebook | wall s | finished (UTC) |", "| --- | ---: | --- |"]
 lines += [f"| {k} | {v['wall_s']} | {v['finished_utc']} |" for k, v in nb.items()]
 last = "04" if "04_train" in nb else "03"
-if last == "03":
+staged = Path(sys.argv[2]).parent
+if last == "03" and (staged / "subspace.sha256").is_file():
+    log = list(csv.DictReader(open(staged / "train_model" / "train_log.csv")))
+    done = f"epoch {log[-1]['epoch']} (step {log[-1]['step']})" if log else "no epoch"
+    lines += ["", f"Notebook 04 was stopped during HBEONet's training, after {done} of "
+              f"{m['profile_settings']['epochs']} epochs: `train_model/checkpoint.pt` is that training's latest checkpoint "
+              "(added with `git add -f`; it may be some steps past the log's last epoch), from which notebook 04, run again "
+              "at the same commit, resumes the training exactly (provenance.json: resumed_from_step) and then runs its "
+              "option trainings and evaluation. `subspace.sha256` is the run's subspace, which finish fits again "
+              "(notebook 02's fit; no model file holds it yet) and refuses to go on from if it differs."]
+elif last == "03":
     lines += ["", "Notebook 04 was stopped after HBEONet's training finished (its option trainings and evaluation had not "
               "run): `train_model/checkpoint.pt` is that training's final checkpoint (added with `git add -f`), from "
               "which notebook 04, run again at the same commit, trains nothing (provenance.json: resumed_from_step)."]
@@ -121,6 +151,8 @@ finish)
   [ "$(git -C "$CLONE" rev-parse HEAD)" = "$commit" ] || die "$CLONE is not at the run's commit $commit"
   [ -z "$(git -C "$CLONE" status --porcelain --untracked-files=no)$(git -C "$CLONE" ls-files -o -- "$R")" ] \
     || die "$CLONE is not a clean clone (changed files, or files in $R)"
+  [ -f "$S/model.hbeo" ] || { [ -f "$S/subspace.sha256" ] && [ -f "$S/train_model/checkpoint.pt" ]; } \
+    || die "$S: neither a model.hbeo nor a cut training's checkpoint and subspace.sha256"
   tag=$(python3 -c "import json; print(json.load(open('$S/manifest.json'))['git_tag'] or '')")
   if [ -n "$tag" ] && ! git -C "$CLONE" rev-parse -q --verify "refs/tags/$tag" >/dev/null; then
     git -C "$CLONE" tag "$tag" "$commit"             # tags do not survive a session: the manifest keeps its tag
@@ -132,9 +164,17 @@ finish)
   $PY -c "from hbeo.report.notebooks import clear_products
 for p in clear_products('$R'): print('[stage] removed', p)"
   (cd "$MAIN/$S" && find . -type f ! -name STAGE.md -print0) | (cd "$MAIN/$S" && xargs -0 cp -p --parents -t "$CLONE/$R")
-  $PY -c "from hbeo.model.inference import HBEO
-HBEO.load('$R/model.hbeo').subspace.save('$R/subspace.npz')"
   $PY -m hbeo voxelize --profile $P --dataset $D --out $R
+  if [ -f "$MAIN/$S/model.hbeo" ]; then
+    $PY -c "from hbeo.model.inference import HBEO
+HBEO.load('$R/model.hbeo').subspace.save('$R/subspace.npz')"
+  else                                    # a cut training (CHECKPOINT=cut): notebook 02's fit again, checked
+    $PY -c "from hbeo.run import Run
+Run.open('$P', '$D', '$R', training_seed=$SEED).fit_subspace(progress=False)"
+    want=$(cut -d' ' -f1 "$MAIN/$S/subspace.sha256")
+    got=$(sha256sum "$R/subspace.npz" | cut -d' ' -f1)
+    [ "$got" = "$want" ] || die "$R/subspace.npz fitted again is $got, not the staged training's $want: its checkpoint cannot go on"
+  fi
   $PY -m hbeo render --profile $P --dataset $D --out $R --split train --quiet
   if finished "$MAIN/$S/manifest.json" 04_train; then todo="05 06 07 08"; else todo="04 05 06 07 08"; fi
   $PY -m hbeo reproduce --profile $P --dataset $D --seed $SEED --only $todo

@@ -2,6 +2,7 @@
 the run folder's new and changed files that git keeps (never the files --fresh deleted, never ignored ones such as
 checkpoints); `finish` refuses a clone at another commit or with files of its own in the run folder. (The whole
 save-then-finish path on a real run: the ci profile, checked by hand, see the script's commit.)"""
+import hashlib
 import json
 import shutil
 import subprocess
@@ -134,6 +135,46 @@ def test_save_with_checkpoint_stages_a_finished_training_of_a_stopped_notebook_0
     assert got == ["STAGE.md", "manifest.json", "model.hbeo", "train_model/checkpoint.pt",
                    "train_model/provenance.json", "train_model/train_log.csv"]     # not 04_options.csv
     assert "notebooks 04-08 have not run" in (st / "STAGE.md").read_text()
+
+
+def test_save_with_checkpoint_cut_stages_a_cut_training_and_the_subspace_hash(repos):
+    main, clone = repos
+    run = clone / R
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render"])
+    m = json.loads((run / "manifest.json").read_text())
+    m["profile_settings"] = {"epochs": 60}
+    (run / "manifest.json").write_text(json.dumps(m))
+    (run / "train_model" / "train_log.csv").write_text("epoch,step\n1,10\n2,20\n")   # cut at epoch 2 of 60
+    (run / "train_model" / "provenance.json").write_text("{}")
+    out = stage(main, "save", clone, CHECKPOINT="1")
+    assert out.returncode != 0 and "CHECKPOINT=cut" in out.stderr                  # 1 is for a finished training
+    (run / "subspace.npz").unlink()
+    out = stage(main, "save", clone, CHECKPOINT="cut")
+    assert out.returncode != 0 and "no subspace.npz" in out.stderr
+    (run / "subspace.npz").write_text("basis")
+    out = stage(main, "save", clone, CHECKPOINT="cut")
+    assert out.returncode == 0, out.stderr
+    st = main / f"{R}-stage"
+    got = sorted(str(p.relative_to(st)) for p in st.rglob("*") if p.is_file())
+    assert got == ["STAGE.md", "manifest.json", "subspace.sha256", "train_model/checkpoint.pt",
+                   "train_model/train_log.csv"]                      # no model.hbeo, nothing else of notebook 04
+    assert (st / "subspace.sha256").read_text().split()[0] == hashlib.sha256(b"basis").hexdigest()
+    text = (st / "STAGE.md").read_text()
+    assert "after epoch 2 (step 20) of 60 epochs" in text and "notebooks 04-08 have not run" in text
+    (run / "train_model" / "checkpoint.pt").unlink()
+    out = stage(main, "save", clone, CHECKPOINT="cut")
+    assert out.returncode != 0 and "no HBEONet checkpoint" in out.stderr
+
+
+def test_finish_refuses_a_stage_without_a_model_or_a_cut_training(repos):
+    main, clone = repos
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render", "04_train"])
+    assert stage(main, "save", clone).returncode == 0
+    (main / f"{R}-stage" / "model.hbeo").unlink()
+    fresh = clone.parent / "fresh"
+    git(clone.parent, "clone", "-q", str(clone), str(fresh))
+    out = stage(main, "finish", fresh)
+    assert out.returncode != 0 and "neither a model.hbeo nor a cut training" in out.stderr
 
 
 def test_save_refuses_a_run_that_already_ran_its_last_notebooks(repos):
