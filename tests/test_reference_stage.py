@@ -64,10 +64,12 @@ def repos(tmp_path):
     return main, clone
 
 
-def manifest(clone, notebooks, run=R):
+def manifest(clone, notebooks, run=R, epochs=None):
     commit = git(clone, "rev-parse", "HEAD").strip()
     m = {"profile": "cpu", "dataset": "toy", "git_commit": commit, "git_tag": "t1", "git_dirty": False,
          "notebooks": {n: {"wall_s": 1.0, "finished_utc": "2026-12-01T00:00:00+00:00"} for n in notebooks}}
+    if epochs is not None:
+        m["profile_settings"] = {"epochs": epochs}
     (clone / run / "manifest.json").write_text(json.dumps(m))
     return commit
 
@@ -116,10 +118,7 @@ def test_save_refuses_a_run_whose_notebook_05_started(repos):
 def test_save_with_checkpoint_stages_a_finished_training_of_a_stopped_notebook_04(repos):
     main, clone = repos
     run = clone / R
-    manifest(clone, ["01_voxelize", "02_subspace", "03_render"])
-    m = json.loads((run / "manifest.json").read_text())
-    m["profile_settings"] = {"epochs": 2}
-    (run / "manifest.json").write_text(json.dumps(m))
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render"], epochs=2)
     (run / "train_model" / "provenance.json").write_text("{}")
     (run / "train_model_opt_paper").mkdir()
     (run / "train_model_opt_paper" / "train_log.csv").write_text("epoch\n")    # an option's training, stopped
@@ -140,10 +139,7 @@ def test_save_with_checkpoint_stages_a_finished_training_of_a_stopped_notebook_0
 def test_save_with_checkpoint_cut_stages_a_cut_training_and_the_subspace_hash(repos):
     main, clone = repos
     run = clone / R
-    manifest(clone, ["01_voxelize", "02_subspace", "03_render"])
-    m = json.loads((run / "manifest.json").read_text())
-    m["profile_settings"] = {"epochs": 60}
-    (run / "manifest.json").write_text(json.dumps(m))
+    manifest(clone, ["01_voxelize", "02_subspace", "03_render"], epochs=60)
     (run / "train_model" / "train_log.csv").write_text("epoch,step\n1,10\n2,20\n")   # cut at epoch 2 of 60
     (run / "train_model" / "provenance.json").write_text("{}")
     out = stage(main, "save", clone, CHECKPOINT="1")
