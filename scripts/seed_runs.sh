@@ -23,7 +23,15 @@
 # `python -m hbeo reproduce --profile cpu --dataset $D --seed 1 --only 01 02 03`, that training's final checkpoint
 # copied to $R-seed1/train_model/checkpoint.pt (as CKPT2 above), `... --only 04` (notebook 04 trains nothing from a
 # final checkpoint: provenance.json's resumed_from_step), then `SEED=1 bash scripts/reference_stage.sh save CLONE`;
-# the same session then ran `... --only 05 06 07 08` in that clone and landed the run. The loop below still makes
+# the same session then ran `... --only 05 06 07 08` in that clone and landed the run.
+# Seed 2 (2026-12-04): `make reproduce PROFILE=cpu DATASET=$D SEED=2` in a clean clone at the reference's tag (notebooks
+# 01-03, then notebook 04 stopped at 16:06 UTC in its HBEONet's epoch 5 to free the cores for model_table.sh 4q),
+# then, on the same machine in the next session, `... SEED=2 RESUME=1` from 19:16 UTC (01-03 again, the same subspace
+# bytes; notebook 04's training resumed from that checkpoint), cut off by the session's end: staged with
+# `CHECKPOINT=cut SEED=2 bash scripts/reference_stage.sh save CLONE` (HBEONet's latest checkpoint, its log and the
+# subspace's sha256; results/cpu-$D-seed2-stage/STAGE.md says at which epoch). Next: a new clean clone at the tag,
+# `SEED=2 bash scripts/reference_stage.sh finish CLONE2` (notebook 04 resumes the training, then 05-08), land the run,
+# `git rm -r` the stage, then the seed table below. The loop below still makes
 # every seed it names: run again as it stands, it would make seed 1's run anew from scratch (--fresh).
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]
 set -euo pipefail
