@@ -163,7 +163,7 @@ finish)
   mkdir -p "$R"
   $PY -c "from hbeo.report.notebooks import clear_products
 for p in clear_products('$R'): print('[stage] removed', p)"
-  (cd "$MAIN/$S" && find . -type f ! -name STAGE.md -print0) | (cd "$MAIN/$S" && xargs -0 cp -p --parents -t "$CLONE/$R")
+  (cd "$MAIN/$S" && find . -type f ! -name STAGE.md ! -name subspace.sha256 -print0) | (cd "$MAIN/$S" && xargs -0 cp -p --parents -t "$CLONE/$R")
   $PY -m hbeo voxelize --profile $P --dataset $D --out $R
   if [ -f "$MAIN/$S/model.hbeo" ]; then
     $PY -c "from hbeo.model.inference import HBEO
