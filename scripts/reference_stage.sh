@@ -58,6 +58,7 @@ save)
   src=$CLONE/$R
   [ -f "$src/manifest.json" ] || die "$src/manifest.json: no run there"
   skip=""                                            # files not staged: a regex on paths in the run folder
+  cut=0                                              # 1: CHECKPOINT=cut staged a cut training (below)
   if ! finished "$src/manifest.json" 04_train; then
     # CHECKPOINT=1: HBEONet's training finished and notebook 04 was stopped after it (its two option trainings and
     # its evaluation take ~15 min more): its final checkpoint is staged too (~70 MB, the one file the landed run
@@ -81,7 +82,7 @@ PY
     cut)
       [ -f "$src/train_model/checkpoint.pt" ] || die "$src: no HBEONet checkpoint (train_model/checkpoint.pt) to resume from"
       [ -f "$src/subspace.npz" ] || die "$src: no subspace.npz (notebook 02)"
-      skip='^(04_|train_model_opt_|model\.hbeo$|train_model/provenance\.json$)' ;;
+      skip='^(04_|train_model_opt_|model\.hbeo$|train_model/provenance\.json$)' cut=1 ;;
     *) die "$src: notebook 04 has not finished (CHECKPOINT=1 stages HBEONet's final checkpoint when only its training has, CHECKPOINT=cut its latest one when the training was cut off)" ;;
     esac
   fi
@@ -104,7 +105,7 @@ PY
       || { git check-ignore -q --no-index -- "$S/${f#$R/}" && continue; }
     mkdir -p "$S/$(dirname "${f#$R/}")" && cp -p "$CLONE/$f" "$S/${f#$R/}" && n=$((n + 1))
   done < <(cd "$CLONE" && find "$R" -type f -print0 | sort -z)
-  if [ "${CHECKPOINT:-0}" = cut ] && ! finished "$src/manifest.json" 04_train; then
+  if [ "$cut" = 1 ]; then
     (cd "$src" && sha256sum subspace.npz) > "$S/subspace.sha256"
   else
     [ -f "$S/model.hbeo" ] || die "$src/model.hbeo was not among the changed files"

@@ -383,13 +383,15 @@ def record_grids(records: list[ObjectRecord], gridset=None) -> np.ndarray:
     it (it failed to voxelize) gets an empty grid (a group of its own). ValueError naming the dataset
     kind when records have no grids and no ``gridset`` is given."""
     out = np.zeros((len(records),) + (C.RESOLUTION,) * 3, bool)
+    rest = []                                                          # records without a grid of their own
     for k, r in enumerate(records):
         if r.has_grid:
             out[k] = r.grid()
         elif gridset is None:
             raise ValueError(f"record_grids: {r.split}/{r.id} has no grid (a mesh dataset); pass the run's "
                              f"training GridSet (RunDir.grids('train'))")
-    rest = [k for k, r in enumerate(records) if not r.has_grid]
+        else:
+            rest.append(k)
     if rest:
         out[rest] = gridset.grids_of([records[k].id for k in rest])
     return out
