@@ -385,6 +385,16 @@ sys.exit(st.mean(x['class_mean_accuracy'] for x in e) <= $(ref_seeds cm mean)
     done
   fi
 fi
+# 4r. (issue 29 item 4, written 2026-12-04 22:05 UTC while the seed-2 run trained, before any result of it) the seed-2
+#     run (scripts/seed_runs.sh) trains the chosen recipe with seed 2 on the reference run's subspace and rendered set:
+#     its training log is 4l's seed 2's bit for bit through epoch 52 (train_model_e60-s2/train_log.csv: the same
+#     training), its epochs 53-60 resumed on another CPU (reference_stage.sh finish). Its model file is committed
+#     (4l's seed-2 model file is not), so it replaces 4l's seed 2 in the reference rows' seeds columns (4l's stays
+#     4l's rows), as 4o's seed 1 did: validation and test, one pass and 4 rolls, on the run's views.
+for x in "split val --views 3 --seed 0:eval_val-ref-s2" "split test --views 3 --seed 0:eval_test-ref-s2"; do
+  $PY -m hbeo evaluate --model $R-seed2/model.hbeo --dataset $D --${x%%:*} --quiet --out $R/${x#*:}.json
+  $PY -m hbeo evaluate --model $R-seed2/model.hbeo --dataset $D --${x%%:*} --rolls 4 --quiet --out $R/${x#*:}-rolls4.json
+done
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'

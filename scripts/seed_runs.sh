@@ -29,9 +29,16 @@
 # then, on the same machine in the next session, `... SEED=2 RESUME=1` from 19:16 UTC (01-03 again, the same subspace
 # bytes; notebook 04's training resumed from that checkpoint), cut off by the session's end: staged with
 # `CHECKPOINT=cut SEED=2 bash scripts/reference_stage.sh save CLONE` (HBEONet's latest checkpoint, its log and the
-# subspace's sha256; results/cpu-$D-seed2-stage/STAGE.md says at which epoch). Next: a new clean clone at the tag,
-# `SEED=2 bash scripts/reference_stage.sh finish CLONE2` (notebook 04 resumes the training, then 05-08), land the run,
-# `git rm -r` the stage, then the seed table below. The loop below still makes
+# subspace's sha256; the stage's STAGE.md said: after epoch 52 of 60). Finished 2026-12-04 from 21:50 UTC in the
+# next session, on another machine (AMD EPYC, AVX2; the stage was made on an Intel Xeon with AVX-512): a new clean
+# clone at the tag, `SEED=2 bash scripts/reference_stage.sh finish CLONE2`. There notebook 02's fit gave other bytes
+# (faeb167a...; the CPUs' floating point differs), so finish took the subspace from the seed-0 run's model.hbeo,
+# which gives the staged sha256 (51bff22b...) exactly; the training set rendered again there (embree) is 14 bytes
+# larger compressed (114,139,659 against 114,139,645: a few pixels differ), so HBEONet's epochs 53-60, resumed from
+# the staged checkpoint (provenance.json: resumed_from_step), saw nearly but not exactly the images of epochs 1-52,
+# on other kernels: its log is 4l's seed 2's bit for bit through epoch 52 and differs from epoch 53. Then notebook
+# 04's option trainings and notebooks 05-08 on that machine; the run landed and the stage was removed, then the
+# seed table below. The loop below still makes
 # every seed it names: run again as it stands, it would make seed 1's run anew from scratch (--fresh).
 # Usage: [CKPT2=FILE] [RESUME=1] bash scripts/seed_runs.sh [PY]
 set -euo pipefail

@@ -194,6 +194,28 @@ def test_reproduction_shows_the_seed_tables_only_while_they_describe_the_run(tmp
     assert S.stale(runs[0], 0) == "eval_hbeo_3dof.json is missing or unreadable"
 
 
+def test_the_readme_summary_gives_the_spread_only_while_the_tables_describe_the_run(tmp_path):
+    runs = _claims_runs(tmp_path)
+    man = {"profile": "ci", "dataset": "procedural", "seeds": {"training": 0}}
+    assert S.summary(runs[0], man) == []                               # no seed tables yet
+    S.write_seed_table(runs, n_boot=20)
+    text = "\n".join(S.summary(runs[0], man))
+    # HBEO's class means: seed 0 every answer right (100 %), seed 1 none (0 %), seed 2 a1 of class a (1/3, 0)
+    cm = [100.0, 0.0, 50 / 3]
+    mean, sd = sum(cm) / 3, math.sqrt(sum((x - sum(cm) / 3) ** 2 for x in cm) / 2)
+    assert f"- HBEO (3-DOF): {mean:.1f} ± {sd:.1f} % (0.0 – 100.0)" in text
+    t = S.seed_claims(runs)
+    steady = {v: int((t["verdicts"] == f"{v} 3 of 3").sum()) for v in ("holds", "fails")}
+    assert steady["holds"] >= 1                                        # ICP's pose claim holds on every seed
+    assert (f"- HBEO (3-DOF), the paper's claims: {steady['holds']} hold and {steady['fails']} fail on every seed, "
+            f"{len(t) - steady['holds'] - steady['fails']} with verdicts that differ between seeds, of {len(t)}.") in text
+    path = RunDir(runs[0]).evaluation("hbeo", "3dof")                  # evaluated again since: not shown
+    m = json.loads(path.read_text())
+    m["per_query"]["pred"][0] = "b"
+    path.write_text(json.dumps(m))
+    assert S.summary(runs[0], man) == []
+
+
 # --------------------------------------------------------------------------- the seed of a run's trainings
 
 def test_default_run_folder_per_training_seed(tmp_path, monkeypatch):

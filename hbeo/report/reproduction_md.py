@@ -376,6 +376,7 @@ def summary(run) -> str:
             counts = g["verdict"].value_counts()
             lines.append(f"- {who}: " + ", ".join(f"{counts.get(v, 0)} {v}" for v in ("holds", "fails", "inconclusive"))
                          + " of " + str(len(g)) + ".")
+    lines += seeds.summary(run, man)
     return "\n".join(lines) + "\n"
 
 

@@ -293,6 +293,32 @@ def stale(run, seed: int) -> str | None:
     return None
 
 
+def summary(run, man: dict) -> list[str]:
+    """The README summary's lines on the spread over training seeds (:func:`hbeo.report.reproduction_md.summary`):
+    each HBEO row's class-mean accuracy as mean ± sd (range) over the seeds and how many seeds gave each claim's
+    verdict, from ``seeds_table.csv`` and ``seeds_claims.csv`` when they describe this run (:func:`stale`), else
+    nothing (REPRODUCTION.md's section says why)."""
+    run = RunDir.of(run)
+    seed = (man.get("seeds") or {}).get("training", 0)
+    if not run.table(tables.SEEDS).is_file() or not run.table(tables.SEEDS_CLAIMS).is_file() or stale(run, seed):
+        return []
+    t = pd.read_csv(run.table(tables.SEEDS))
+    cm = t[t["method"].str.startswith("hbeo") & (t["statistic"] == "class_mean")]     # HBEO and its extensions
+    cl = pd.read_csv(run.table(tables.SEEDS_CLAIMS))
+    n = int(cm["seeds"].iloc[0]) if len(cm) else 0
+    seeds = ", ".join(c[len("seed "):] for c in t.columns if c.startswith("seed ") and not c.endswith(("low", "high")))
+    lines = ["", f"Over training seeds {seeds} (the run made again with each; `{tables.SEEDS}.md`, `{tables.SEEDS_CLAIMS}.md`, "
+             "REPRODUCTION.md's *The spread over training seeds*): class-mean accuracy, mean ± sample sd (min – max) "
+             f"over the {n} runs:", ""]
+    lines += [f"- {r['label']}: {100 * r['mean']:.1f} ± {100 * r['sd']:.1f} % ({100 * r['min']:.1f} – {100 * r['max']:.1f})"
+              for _, r in cm.iterrows()]
+    for who, g in cl.groupby("HBEO played by", sort=False):
+        every = {v: int((g["verdicts"] == f"{v} {n} of {n}").sum()) for v in ("holds", "fails")}
+        lines.append(f"- {who}, the paper's claims: {every['holds']} hold and {every['fails']} fail on every seed, "
+                     f"{len(g) - every['holds'] - every['fails']} with verdicts that differ between seeds, of {len(g)}.")
+    return lines
+
+
 def section(run, man: dict) -> list[str]:
     """The lines of ``REPRODUCTION.md``'s section on the spread over training seeds for run folder ``run``
     (``man``: its manifest): the seed table and the claims per seed when the folder holds them and they agree
