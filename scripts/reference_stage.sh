@@ -184,7 +184,7 @@ Run.open('$P', '$D', '$R', training_seed=$SEED).fit_subspace(progress=False)"
 HBEO.load('$ref').subspace.save('$R/subspace.npz')"
       got=$(sha256sum "$R/subspace.npz" | cut -d' ' -f1)
     fi
-    [ "$got" = "$want" ] || die "$R/subspace.npz fitted again is $got, not the staged training's $want: its checkpoint cannot go on"
+    [ "$got" = "$want" ] || die "$R/subspace.npz (fitted again, or the seed-0 run's) is $got, not the staged training's $want: its checkpoint cannot go on"
   fi
   $PY -m hbeo render --profile $P --dataset $D --out $R --split train --quiet
   if finished "$MAIN/$S/manifest.json" 04_train; then todo="05 06 07 08"; else todo="04 05 06 07 08"; fi

@@ -295,8 +295,8 @@ def stale(run, seed: int) -> str | None:
 
 def summary(run, man: dict) -> list[str]:
     """The README summary's lines on the spread over training seeds (:func:`hbeo.report.reproduction_md.summary`):
-    each HBEO row's class-mean accuracy as mean ± sd (range) over the seeds and how many seeds gave each claim's
-    verdict, from ``seeds_table.csv`` and ``seeds_claims.csv`` when they describe this run (:func:`stale`), else
+    each HBEO row's class-mean accuracy as mean ± sd (range) over the seeds and how many of the paper's claims got
+    the same verdict on every seed, from ``seeds_table.csv`` and ``seeds_claims.csv`` when they describe this run (:func:`stale`), else
     nothing (REPRODUCTION.md's section says why)."""
     run = RunDir.of(run)
     seed = (man.get("seeds") or {}).get("training", 0)
