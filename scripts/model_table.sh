@@ -391,10 +391,8 @@ fi
 #     training), its epochs 53-60 resumed on another CPU (reference_stage.sh finish). Its model file is committed
 #     (4l's seed-2 model file is not), so it replaces 4l's seed 2 in the reference rows' seeds columns (4l's stays
 #     4l's rows), as 4o's seed 1 did: validation and test, one pass and 4 rolls, on the run's views.
-for x in "split val --views 3 --seed 0:eval_val-ref-s2" "split test --views 3 --seed 0:eval_test-ref-s2"; do
-  $PY -m hbeo evaluate --model $R-seed2/model.hbeo --dataset $D --${x%%:*} --quiet --out $R/${x#*:}.json
-  $PY -m hbeo evaluate --model $R-seed2/model.hbeo --dataset $D --${x%%:*} --rolls 4 --quiet --out $R/${x#*:}-rolls4.json
-done
+pair ../cpu-$D-seed2/model.hbeo val eval_val-ref-s2
+pair ../cpu-$D-seed2/model.hbeo test eval_test-ref-s2
 # 5. the README's model and targets tables, and the confusion matrices of the chosen rows
 $PY -m hbeo report --model-table --run $R --readme README.md
 $PY - <<'PYEOF'

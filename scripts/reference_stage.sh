@@ -50,6 +50,10 @@ die() { echo "reference_stage.sh: $*" >&2; exit 1; }
 unchanged() {  # unchanged PATH: the clone's commit holds the file at PATH (relative to the clone) as it is now
   git -C "$CLONE" ls-files --error-unmatch -- "$1" >/dev/null 2>&1 && git -C "$CLONE" diff --quiet -- "$1"
 }
+basis_of() {   # basis_of MODEL: write the subspace held by model file MODEL as the run's subspace.npz (in CLONE)
+  $PY -c "from hbeo.model.inference import HBEO
+HBEO.load('$1').subspace.save('$R/subspace.npz')"
+}
 finished() {   # finished MANIFEST NOTEBOOK: the manifest records that notebook's wall time
   python3 -c "import json, sys; sys.exit('$2' not in json.load(open('$1')).get('notebooks', {}))"
 }
@@ -168,8 +172,7 @@ for p in clear_products('$R'): print('[stage] removed', p)"
   (cd "$MAIN/$S" && find . -type f ! -name STAGE.md ! -name subspace.sha256 -print0) | (cd "$MAIN/$S" && xargs -0 cp -p --parents -t "$CLONE/$R")
   $PY -m hbeo voxelize --profile $P --dataset $D --out $R
   if [ -f "$MAIN/$S/model.hbeo" ]; then
-    $PY -c "from hbeo.model.inference import HBEO
-HBEO.load('$R/model.hbeo').subspace.save('$R/subspace.npz')"
+    basis_of "$R/model.hbeo"
   else                                    # a cut training (CHECKPOINT=cut): notebook 02's fit again, checked
     $PY -c "from hbeo.run import Run
 Run.open('$P', '$D', '$R', training_seed=$SEED).fit_subspace(progress=False)"
@@ -180,8 +183,7 @@ Run.open('$P', '$D', '$R', training_seed=$SEED).fit_subspace(progress=False)"
       # the fit's floating point differs between CPUs (AVX-512 and AVX2 kernels): the subspace the staged training
       # used is then taken from the seed-0 run's model file, and accepted only if it gives the staged bytes
       echo "[stage] the subspace fitted again on this CPU differs ($got); taking $ref's basis" >&2
-      $PY -c "from hbeo.model.inference import HBEO
-HBEO.load('$ref').subspace.save('$R/subspace.npz')"
+      basis_of "$ref"
       got=$(sha256sum "$R/subspace.npz" | cut -d' ' -f1)
     fi
     [ "$got" = "$want" ] || die "$R/subspace.npz (fitted again, or the seed-0 run's) is $got, not the staged training's $want: its checkpoint cannot go on"

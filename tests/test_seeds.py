@@ -204,11 +204,9 @@ def test_the_readme_summary_gives_the_spread_only_while_the_tables_describe_the_
     cm = [100.0, 0.0, 50 / 3]
     mean, sd = sum(cm) / 3, math.sqrt(sum((x - sum(cm) / 3) ** 2 for x in cm) / 2)
     assert f"- HBEO (3-DOF): {mean:.1f} ± {sd:.1f} % (0.0 – 100.0)" in text
-    t = S.seed_claims(runs)
-    steady = {v: int((t["verdicts"] == f"{v} 3 of 3").sum()) for v in ("holds", "fails")}
-    assert steady["holds"] >= 1                                        # ICP's pose claim holds on every seed
-    assert (f"- HBEO (3-DOF), the paper's claims: {steady['holds']} hold and {steady['fails']} fail on every seed, "
-            f"{len(t) - steady['holds'] - steady['fails']} with verdicts that differ between seeds, of {len(t)}.") in text
+    # the first claim differs between seeds; the pose claim against ICP and the completion claim hold on every seed
+    assert ("- HBEO (3-DOF), the paper's claims: 2 hold and 0 fail on every seed, "
+            "1 with verdicts that differ between seeds, of 3.") in text
     path = RunDir(runs[0]).evaluation("hbeo", "3dof")                  # evaluated again since: not shown
     m = json.loads(path.read_text())
     m["per_query"]["pred"][0] = "b"

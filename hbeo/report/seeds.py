@@ -305,9 +305,9 @@ def summary(run, man: dict) -> list[str]:
     t = pd.read_csv(run.table(tables.SEEDS))
     cm = t[t["method"].str.startswith("hbeo") & (t["statistic"] == "class_mean")]     # HBEO and its extensions
     cl = pd.read_csv(run.table(tables.SEEDS_CLAIMS))
-    n = int(cm["seeds"].iloc[0]) if len(cm) else 0
-    seeds = ", ".join(c[len("seed "):] for c in t.columns if c.startswith("seed ") and not c.endswith(("low", "high")))
-    lines = ["", f"Over training seeds {seeds} (the run made again with each; `{tables.SEEDS}.md`, `{tables.SEEDS_CLAIMS}.md`, "
+    seeds = [c[len("seed "):] for c in t.columns if c.startswith("seed ") and not c.endswith(("low", "high"))]
+    n = len(seeds)
+    lines = ["", f"Over training seeds {', '.join(seeds)} (the run made again with each; `{tables.SEEDS}.md`, `{tables.SEEDS_CLAIMS}.md`, "
              "REPRODUCTION.md's *The spread over training seeds*): class-mean accuracy, mean ± sample sd (min – max) "
              f"over the {n} runs:", ""]
     lines += [f"- {r['label']}: {100 * r['mean']:.1f} ± {100 * r['sd']:.1f} % ({100 * r['min']:.1f} – {100 * r['max']:.1f})"
