@@ -1,5 +1,6 @@
 # hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
-#   make reproduce   set up, then run every notebook (procedural data, cpu profile) into results/, training
+#   make reproduce   set up, then run every notebook (procedural data, quick profile: ~35 min on 2 cores) into
+#                    results/quick-procedural/, training
 #                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints;
 #                    SEED=N: train every model with training seed N, into results/$(PROFILE)-$(DATASET)-seedN)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile), then the fast
@@ -12,7 +13,7 @@
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
-PROFILE ?= cpu
+PROFILE ?= quick
 DATASET ?= procedural
 SEED   ?= 0
 RUN    ?= results/$(PROFILE)-$(DATASET)$(if $(filter-out 0,$(SEED)),-seed$(SEED))

@@ -9,6 +9,7 @@ import math
 import sys
 import traceback
 
+from hbeo import config
 from hbeo.errors import HBEOError, os_error_line
 from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
 from hbeo.rundir import DEFAULT_MODEL
@@ -84,7 +85,7 @@ def _dataset_arg(p, profile="cpu"):
                    help="procedural | modelnet10 | modelnet10-vox30 | PATH to a ModelNet-layout folder "
                         "(default: procedural)")
     p.add_argument("--profile", default=profile,
-                   help=f"ci | cpu | full: objects per class and run sizes (default: {profile})")
+                   help=f"{' | '.join(config.PROFILES)}: objects per class and run sizes (default: {profile})")
 
 
 def _run(args, **kw):
@@ -385,7 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("old", help="old model file (model.hbeo or voxcnn.pt written by hbeo before format 2)")
     p.add_argument("new", help="new model file (may be OLD itself: replaced once the conversion checks out)")
     p = _command(sub, cmd_reproduce, "reproduce", help="run the numbered notebooks with papermill into results/")
-    _dataset_arg(p)
+    _dataset_arg(p, profile="quick")
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET, -seedS added for --seed S)")
     p.add_argument("--seed", type=NONNEG, default=0, help="training seed of every model the run trains (HBEONet, "
                    "the 3-D CNN); data, renderings and test views keep seed 0, so seeds score the same images (0)")

@@ -173,7 +173,7 @@ class BEO:
         ``classes`` (default: the subspace's). Class priors are the class frequencies. ``progress``:
         a bar over the classes' mixtures."""
         from sklearn.mixture import GaussianMixture
-        from tqdm.auto import tqdm
+        from hbeo.progress import tqdm
         g = np.asarray(grids)
         labels = np.asarray(labels)
         if g.ndim != 4 or g.shape[1:] != (C.RESOLUTION,) * 3:

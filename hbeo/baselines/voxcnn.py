@@ -38,7 +38,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 from torch.utils.data import Subset
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo import config
 from hbeo import conventions as C

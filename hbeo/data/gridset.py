@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo import config
 from hbeo import conventions as C

@@ -54,7 +54,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo import __version__
 from hbeo.baselines.methods import GIVEN_CLASS

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 from torch import nn
 from torch.utils.data import DataLoader, Dataset, IterableDataset
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo.batches import collate
 from hbeo.errors import DataError

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import torch
 from torch.utils.data import Dataset
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo.conventions import Intrinsics
 from hbeo.data.gridset import GridSet

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch.utils.data import Dataset, IterableDataset, Subset, get_worker_info
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo.batches import Stacked
 from hbeo.errors import DataError

@@ -63,7 +63,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo import __version__
 from hbeo.errors import BatchError, DataError

@@ -11,10 +11,12 @@ May import: foundation, data, run, and the other report modules (papermill and t
 from __future__ import annotations
 
 import os
+import tempfile
 import time
 from pathlib import Path
 
 from hbeo import config
+from hbeo.progress import ProgressEcho
 from hbeo.report.provenance import write_manifest
 from hbeo.rundir import RunDir
 
@@ -42,7 +44,8 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     ``out_dir`` defaults to ``results/PROFILE-DATASET``, ``-seed<S>`` appended for a seed S other than 0.
 
     Each executed copy is written into the run folder under the notebook's name; a progress line
-    per notebook says what runs and how long it took; the run's ``manifest.json`` is updated after
+    per notebook says what runs and how long it took, and while it runs the terminal shows its latest
+    progress bar (step, items done, time estimate; :class:`hbeo.progress.ProgressEcho`); the run's ``manifest.json`` is updated after
     each. The first failing notebook stops the run (papermill raises, and the failing copy shows
     where). ``fresh``: first remove what earlier runs trained or evaluated there (:func:`clear_products`),
     so every model is trained inside this run. After the last notebook, the run's
@@ -70,7 +73,9 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         seed = f", training seed {training_seed}" if training_seed else ""
         print(f"[hbeo {k}/{len(nbs)}] {nb.name} (profile={profile}, dataset={dataset}{seed}) -> {target}", flush=True)
         t0 = time.perf_counter()
-        pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS), parameters=params, progress_bar=False)
+        with ProgressEcho(Path(tempfile.gettempdir()) / f"hbeo-progress-{os.getpid()}.txt",
+                          f"[hbeo {k}/{len(nbs)}] {nb.stem}"):
+            pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS), parameters=params, progress_bar=False)
         sec = time.perf_counter() - t0
         write_manifest(run, profile, dataset, {nb.stem: round(sec, 1)}, training_seed=training_seed)
         print(f"[hbeo {k}/{len(nbs)}] {nb.name} done in {sec / 60:.1f} min "

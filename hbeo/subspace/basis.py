@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 from scipy import linalg
 from scipy.linalg import blas
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo import conventions as C
 from hbeo.errors import DataError

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
+from hbeo.progress import tqdm
 
 from hbeo.subspace import metrics
 from hbeo.data.gridset import GridSet
