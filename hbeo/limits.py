@@ -7,9 +7,10 @@ in each worker's memory (:func:`check_render`: every object's views are one task
 (checked against the free space of the output folder); a training set held in memory
 (:func:`check_in_memory`) and an evaluation, whose per-view answers are kept until the metrics are computed
 (:func:`check_evaluation`), are checked against the memory available now; local worker processes
-(:func:`check_workers`) against the memory one of them needs. A refusal is a :class:`ResourceError`
-(a :class:`~hbeo.errors.HBEOError` and a ValueError: ``python -m hbeo`` prints it as one line, exit 2)
-that names the option, the estimate and the largest value that would fit.
+(:func:`check_workers`) against the memory one of them needs; a network's sizes (``--fc``) against the
+memory its training needs (:data:`TRAIN_BYTES_PER_PARAM`, :func:`hbeo.model.network.check_network`). A
+refusal is a :class:`ResourceError` (a :class:`~hbeo.errors.HBEOError` and a ValueError: ``python -m hbeo``
+prints it as one line, exit 2) that names the option, the estimate and the largest value that would fit.
 
 The byte figures are estimates of the peak, measured by ``benchmarks/bench_memory.py``
 (``benchmarks/README.md``); the commands' bounds are stated in README.md ("Memory").
@@ -49,6 +50,9 @@ WORKER_BYTES = 400 * 2 ** 20
 MAX_WORKERS_PER_CORE = 4
 #: fraction of the available memory a command may plan to use (the rest: the process itself, the system)
 MEMORY_FRACTION = 0.5
+#: bytes per parameter of a network being trained: float32 weights, their gradients and Adam's two moments
+#: (checked before the network is built: :func:`hbeo.model.network.check_network`)
+TRAIN_BYTES_PER_PARAM = 16
 
 
 class ResourceError(HBEOError, ValueError):

@@ -294,6 +294,7 @@ class Run:
         seed when not 0). Under ``torchrun`` rank 0 prepares the files and writes."""
         from hbeo.model import distributed
         from hbeo.model.fit import fit_model
+        from hbeo.model.network import check_network
         from hbeo.model.loop import CHECKPOINT, load_checkpoint
         opts = options or TrainOptions()
         seed = self.training_seed if opts.seed is None else opts.seed
@@ -312,6 +313,8 @@ class Run:
         n = len(self.records("train"))                    # refused before anything is rendered
         check_in_memory(n * settings.views_per_object, settings.image_size, per=n,
                         source=opts.data or prof.data.train_data, value=settings.views_per_object)
+        # the network's size too (one coefficient: the subspace may not exist yet; fit_model checks it exactly)
+        check_network(opts.net_config(prof, settings.image_size, len(self.dataset.classes), 1))
         main = distributed.world().main
         if main:                                          # rank 0 prepares the shared files, the others wait
             if (opts.data or prof.data.train_data) == "stream":

@@ -148,6 +148,43 @@ def test_train_in_memory_with_absurd_views_is_refused_before_rendering(tmp_path,
     assert err.startswith("error: --views 1.0e7: 6.0e8 80x60 training images") and "held in memory" in err and "--data shards" in err
 
 
+def test_train_with_an_absurd_fc_is_refused_before_the_network_is_built(tmp_path, capsys, monkeypatch):
+    from hbeo.model import network
+    from hbeo.render import renderset
+    monkeypatch.setattr(renderset, "render_set", lambda *a, **k: pytest.fail("rendering started"))
+    monkeypatch.setattr(network.HBEONet, "__init__", lambda *a, **k: pytest.fail("network allocated"))
+    code = main(["train", "--profile", "ci", "--fc", "1000000000,1,1", "--out", str(tmp_path / "run"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith("error: --fc 1000000000,1,1: HBEONet would have ") and "80x60 input" in err, err
+    assert "of memory" in err and "the largest W1 that fits (the other widths as given) is " in err, err
+    assert not any((tmp_path / "run").rglob("*"))                 # nothing made: no grids, renders, checkpoint
+
+
+@pytest.mark.parametrize("kw", [dict(), dict(rotation="bins", rotation_bins=64, kernel=3, image_size=(81, 59)),
+                                dict(rotation="6d", dropout=0.1, fc=(7, 5, 3), n_coeffs=11)])
+def test_network_params_counts_what_hbeonet_allocates(kw):
+    from hbeo.model.network import HBEONet, NetConfig, network_params
+    cfg = NetConfig(**{"image_size": (32, 24), "n_classes": 3, "n_coeffs": 4, "conv_channels": (4, 4, 8, 8),
+                       "fc": (16, 8, 8), **kw})
+    assert network_params(cfg) == HBEONet(cfg).n_params()
+
+
+def test_network_check_names_the_largest_width_that_fits():
+    from hbeo.model.network import NetConfig, check_network, network_params
+    cfg = NetConfig(image_size=(80, 60), n_classes=10, n_coeffs=1, fc=(10 ** 6, 256, 256))
+    with pytest.raises(ResourceError, match=r"^--fc 1000000,256,256: HBEONet would have [\d,]+ parameters at 80x60 "
+                                            r"input; .* 1.0 GB available; the largest W1 that fits .* is ([\d,]+)$") as e:
+        check_network(cfg, memory=GB)
+    fit = int(str(e.value).rsplit(" ", 1)[1].replace(",", ""))
+    assert network_params(NetConfig(image_size=(80, 60), n_classes=10, n_coeffs=1, fc=(fit, 256, 256))) \
+        * limits.TRAIN_BYTES_PER_PARAM <= GB * limits.MEMORY_FRACTION          # what it said fits, fits
+    check_network(NetConfig(image_size=(80, 60), n_classes=10, n_coeffs=1, fc=(fit, 256, 256)), memory=GB)
+    with pytest.raises(ResourceError, match=r"the largest W1 that fits"):
+        check_network(NetConfig(image_size=(80, 60), n_classes=10, n_coeffs=1, fc=(fit + 1, 256, 256)), memory=GB)
+    with pytest.raises(ResourceError, match="does not fit even with W3 = 1"):
+        check_network(NetConfig(image_size=(80, 60), fc=(1, 10 ** 9, 10 ** 9)), memory=GB)
+
 def test_in_memory_estimate_names_the_largest_views_that_fit():
     with pytest.raises(ResourceError, match=r"largest value that fits is 862, or use --data shards"):
         limits.check_in_memory(60 * 10 ** 6, (80, 60), per=60, memory=GB)

@@ -21,7 +21,7 @@ import torch
 
 from hbeo.errors import DataError
 from hbeo.model.inference import HBEO
-from hbeo.model.network import HBEONet, LossWeights, NetConfig, hbeo_loss
+from hbeo.model.network import HBEONet, LossWeights, NetConfig, check_network, hbeo_loss
 from hbeo.model import distributed
 from hbeo.model.loop import TrainConfig, ValidationMeans, train
 from hbeo.render.renderset import Manifest, subspace_info
@@ -172,6 +172,14 @@ class TrainOptions:
         ``class_balance``."""
         return {k: v if (v := getattr(self, k)) is not None else d for k, d in prof.recipe.fit_kwargs().items()}
 
+    def net_config(self, prof, image_size, n_classes: int, n_coeffs: int) -> NetConfig:
+        """HBEONet's sizes for this training: the profile's network (:class:`hbeo.config.NetworkConfig`) with
+        this run's ``fc``, its recipe's rotation and its normalization, for images of ``image_size`` (W, H)."""
+        return NetConfig(image_size=tuple(image_size), n_classes=int(n_classes), n_coeffs=int(n_coeffs),
+                         conv_channels=tuple(prof.network.conv_channels), fc=tuple(self.fc or prof.network.fc),
+                         kernel=prof.network.kernel, rotation=self.recipe(prof)["rotation"],
+                         normalization=self.normalization)
+
     def changed(self) -> dict:
         """The fields that differ from their defaults, JSON-ready (for provenance)."""
         out = {}
@@ -219,7 +227,7 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     run = RunDir.of(run)
     opts = options or TrainOptions()
     recipe = opts.recipe(prof)
-    rotation, augment_roll, shape_loss = recipe["rotation"], recipe["augment_roll"], recipe["shape_loss"]
+    augment_roll, shape_loss = recipe["augment_roll"], recipe["shape_loss"]
     balance = recipe["class_balance"]
     view = opts.view
     source = opts.data or prof.data.train_data
@@ -243,9 +251,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     settings = settings or RenderSettings.from_profile(prof, backend=opts.backend)
     data = training_data(run, view, opts.val_fraction, augment_roll, progress, source, dataset, prof, settings,
                          prof.data.val_split, prof.data.twin_iou, opts.augment_mirror)
-    cfg = NetConfig(image_size=tuple(data.settings.image_size), n_classes=len(data.classes), n_coeffs=sub.dim_,
-                    conv_channels=tuple(prof.network.conv_channels), fc=tuple(opts.fc or prof.network.fc),
-                    kernel=prof.network.kernel, rotation=rotation, normalization=opts.normalization)
+    cfg = opts.net_config(prof, data.settings.image_size, len(data.classes), sub.dim_)
+    check_network(cfg)                # refused before the network is built
     how = {"augment_roll": augment_roll, "recenter": view.recenter, "ref_distance": view.ref_distance,
            "val_fraction": opts.val_fraction}
     if prof.data.val_split != "object":    # object-split runs keep the settings (and checkpoints) they had

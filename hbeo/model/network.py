@@ -23,6 +23,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from hbeo.limits import MEMORY_FRACTION, TRAIN_BYTES_PER_PARAM, ResourceError, available_memory, human_bytes
 from hbeo.rotations import axis_angle_to_matrix, matrix_to_sixd, project_to_so3, sixd_to_matrix, super_fibonacci
 
 ROTATIONS = ("axis_angle", "6d", "bins")
@@ -120,6 +121,56 @@ class HBEONet(nn.Module):
 
     def n_params(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+
+def _feature_size(cfg: NetConfig) -> int:
+    """Inputs of the first fully connected layer: the last convolution's channels x its output pixels."""
+    w, h = cfg.image_size
+    for _ in range(4):
+        w, h = (int(w) + 1) // 2, (int(h) + 1) // 2
+    return int(cfg.conv_channels[-1]) * w * h
+
+
+def network_params(cfg: NetConfig) -> int:
+    """HBEONet(cfg)'s parameter count from its sizes alone (nothing allocated): the convolutions with their
+    biases and batch norms, the three shared layers and the three heads. Equals ``HBEONet(cfg).n_params()``."""
+    n, c_in = 0, 1
+    for c in cfg.conv_channels:
+        n += c_in * c * cfg.kernel ** 2 + c + 2 * c
+        c_in = c
+    f_in = _feature_size(cfg)
+    for f in (*cfg.fc, cfg.n_classes + cfg.pose_dim + cfg.n_coeffs):   # the heads: one layer of their widths
+        n += f_in * f + f
+        f_in = f
+    return n
+
+
+def check_network(cfg: NetConfig, option: str = "--fc", memory: int | None = None) -> int:
+    """HBEONet(cfg)'s parameter count, or ResourceError before anything is allocated when training it
+    (:data:`hbeo.limits.TRAIN_BYTES_PER_PARAM` a parameter: weights, gradients, Adam's two moments) needs
+    more than :data:`hbeo.limits.MEMORY_FRACTION` of the available memory (``memory``: that figure, for
+    tests). The message names ``option`` with the widths, the estimate and the largest value of the widest
+    layer's width that fits with the other two as given."""
+    params = network_params(cfg)
+    mem = memory if memory is not None else available_memory()
+    budget = mem * MEMORY_FRACTION
+    need = params * TRAIN_BYTES_PER_PARAM
+    if need <= budget:
+        return params
+    fc = tuple(int(w) for w in cfg.fc)
+    # parameters are linear in each width: pick the width that adds the most, solve for its largest value
+    ins = (_feature_size(cfg),) + fc[:2]
+    outs = fc[1:] + (cfg.n_classes + cfg.pose_dim + cfg.n_coeffs,)
+    per = [i + 1 + o for i, o in zip(ins, outs)]            # parameters one more unit of width i adds
+    i = max(range(3), key=lambda j: fc[j] * per[j])
+    rest = params - fc[i] * per[i]
+    fit = int((budget / TRAIN_BYTES_PER_PARAM - rest) // per[i])
+    what = (f"the largest W{i + 1} that fits (the other widths as given) is {fit:,}" if fit >= 1 else
+            f"it does not fit even with W{i + 1} = 1: make the other widths smaller too")
+    raise ResourceError(
+        f"{option} {','.join(map(str, fc))}: HBEONet would have {params:,} parameters at {cfg.image_size[0]}x"
+        f"{cfg.image_size[1]} input; training it needs about {human_bytes(need)} of memory (float32 weights, "
+        f"gradients and Adam's two moments), {human_bytes(mem)} available; {what}")
 
 
 # ------------------------------------------------------------------ pose heads
