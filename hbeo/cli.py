@@ -59,6 +59,20 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def _local_workers(text: str) -> int:
+    """An argparse ``type=`` for ``--workers``: a whole number >= 0, 0 meaning one process per core this
+    process may run on (:func:`hbeo.limits.usable_cores`). Not given: None, the profile's count."""
+    n = NONNEG(text)
+    if n == 0:
+        from hbeo.limits import usable_cores
+        return usable_cores()
+    return n
+
+
+#: the --workers help of the commands that start local processes
+_WORKERS_HELP = "local processes (default: the profile's; 0: one per core this process may use)"
+
+
 def _join_list_values(argv: list[str]) -> list[str]:
     out, i = [], 0
     while i < len(argv):
@@ -254,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
     _dataset_arg(p)
     p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET), or FILE.npz: every object "
                                  "in one file of the published modelnet10_vox30.npz layout")
-    p.add_argument("--workers", type=NONNEG, default=0, help="processes (default: the profile's)")
+    p.add_argument("--workers", type=_local_workers, help=_WORKERS_HELP)
     p.add_argument("--strict", action="store_true",
                    help="exit with status 2 if any object fails (default: skip it, list it in failures.json)")
     p = _command(sub, cmd_subspace, "subspace", help="fit the shared VBPCA subspace; print components and completion errors")
@@ -274,8 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--views", type=COUNT, help="views per object (default: the profile's)")
     p.add_argument("--sampler", choices=SAMPLERS, default="so3", help=_SAMPLER_HELP)
     p.add_argument("--noise", action="store_true", help="apply the Kinect-like sensor noise model")
-    p.add_argument("--workers", type=NONNEG, default=0,
-                   help="processes of the local Dask cluster (default: the profile's; unused with --scheduler)")
+    p.add_argument("--workers", type=_local_workers,
+                   help="processes of the local Dask cluster (default: the profile's; 0: one per core this process "
+                        "may use; unused with --scheduler)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="render on the running Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of a "
                         "local cluster; its workers must see --out at the same path and run the same hbeo")

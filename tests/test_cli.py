@@ -101,3 +101,20 @@ def test_report_writes_into_the_run_folder_unless_told_otherwise(tmp_path):
 def test_book_is_a_subcommand():
     out = run("book", "--help")
     assert out.returncode == 0 and "opens offline" in out.stdout and "RUN/book" in out.stdout
+
+
+@pytest.mark.parametrize("command", ["render", "voxelize"])
+def test_workers_0_means_one_process_per_usable_core(command, monkeypatch, tmp_path):
+    from hbeo import cli, limits
+    from hbeo.run import Run
+    monkeypatch.setattr(limits, "usable_cores", lambda fallback=1: 3)
+    parser = cli.build_parser()
+    assert parser.parse_args([command]).workers is None                     # not given: the profile's count
+    assert parser.parse_args([command, "--workers", "0"]).workers == 3
+    assert parser.parse_args([command, "--workers", "5"]).workers == 5
+    assert "0: one per core this process may use" in " ".join(run(command, "--help").stdout.split())
+    seen = []
+    monkeypatch.setattr(Run, "render", lambda self, splits, settings, subspace, workers, *a: seen.append(workers) or [])
+    monkeypatch.setattr(Run, "voxelize", lambda self, workers=0: seen.append(workers) or [])
+    assert cli.main([command, "--profile", "ci", "--workers", "0", "--out", str(tmp_path / "run")]) == 0
+    assert seen == [3]
