@@ -249,6 +249,41 @@ def cmd_book(args) -> int:
     return 0
 
 
+def cmd_experiment_list(args) -> int:
+    from hbeo.report.experiments import listing
+    print(listing(args.experiments))
+    return 0
+
+
+def cmd_experiment_run(args) -> int:
+    from hbeo.report.experiments import run
+    run(args.name, args.experiments, dry_run=args.dry_run)
+    return 0
+
+
+def cmd_experiment_table(args) -> int:
+    from hbeo.report.experiments import write_table
+    print("\n".join(f"wrote {p}" for p in write_table(args.experiments, args.readme)))
+    return 0
+
+
+def _experiment_parser(sub) -> None:
+    p = sub.add_parser("experiment", help="the model table's experiments (experiments/*/NN-NAME.toml): list, run, table",
+                       description="Each row of a run's model table is a spec, experiments/RUN/NN-NAME.toml "
+                                   "(hbeo.report.experiments); models.json is generated from them.")
+    verbs = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    for name, func, what in (("list", cmd_experiment_list, "every spec: status, rule, whether its metrics files exist"),
+                             ("run", cmd_experiment_run, "train, evaluate and write one spec's metrics files"),
+                             ("table", cmd_experiment_table, "regenerate models.json and the model table from the specs")):
+        v = _command(verbs, func, name, help=what)
+        v.add_argument("--experiments", metavar="DIR", help="the specs' folder (default: the repository's experiments/)")
+        if name == "run":
+            v.add_argument("name", help="the spec's name (or NN-NAME), as `experiment list` shows it")
+            v.add_argument("--dry-run", action="store_true", help="print the commands, run nothing")
+        if name == "table":
+            v.add_argument("--readme", help="also replace the model and targets blocks in this README")
+
+
 def _command(sub, func, name: str, **kw) -> argparse.ArgumentParser:
     p = sub.add_parser(name, description=kw.get("help"), **kw)      # the list's line heads the command's --help
     p.set_defaults(func=func)
@@ -423,6 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "HTML site that opens offline")
     p.add_argument("run", help="run folder (results/<profile>-<dataset>)")
     p.add_argument("out", nargs="?", help="where the book goes (default: RUN/book)")
+    _experiment_parser(sub)
     return ap
 
 

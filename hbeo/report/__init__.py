@@ -4,6 +4,7 @@
 - :mod:`~hbeo.report.figures`: voxel pictures, galleries, axis panels, writing figures;
 - :mod:`~hbeo.report.paper_figures`: the figures of notebooks 05-07;
 - :mod:`~hbeo.report.model_table`: the validation / test table of a run's models (README block);
+- :mod:`~hbeo.report.experiments`: the model table's rows as specs (``experiments/``): list, run, regenerate;
 - :mod:`~hbeo.report.provenance`: the run's ``manifest.json``;
 - :mod:`~hbeo.report.reproduction_md`: ``REPRODUCTION.md`` (reported vs. reproduced) and the README summary;
 - :mod:`~hbeo.report.readings`: ``REPRODUCTION.md``'s section on the paper's claims under each reading of the

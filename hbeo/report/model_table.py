@@ -7,6 +7,8 @@ A run folder's ``models.json`` (:attr:`hbeo.rundir.RunDir.model_rows`) lists the
       "val_seeds": ["eval_val_x-s1.json", ...], "test_seeds": ["eval_test_x-s1.json", ...],
       "baseline": true | absent}, ...]
 
+``models.json`` is generated from the specs in ``experiments/<run folder>/`` (one TOML file a row,
+:mod:`hbeo.report.experiments`; ``python -m hbeo experiment table``), never edited by hand.
 Each names metrics files (``python -m hbeo evaluate`` output) of the same folder or, for models the run
 no longer holds (earlier configurations, ablations), of its history folder (:attr:`hbeo.rundir.RunDir.history`,
 ``docs/history/<run>/``). Configurations are compared on the validation objects; only rows marked ``chosen``
