@@ -58,5 +58,10 @@ test-notebooks: setup
 benchmark: setup
 	$(PY) benchmarks/bench_voxelize.py
 
+# every untracked (or ignored) file and folder under results/: the run folders made here, the caches, renderings
+# and checkpoints inside the committed runs; never a tracked file, so a committed run stays as committed
+# (DRY=1: list what would go, delete nothing). Refused unless this folder is the top of a git checkout (a copy
+# without git, or one inside another repository, cannot tell the committed runs from generated ones).
 clean-results:
-	rm -rf results/ci-* results/cpu-* results/full-*
+	@test "$$(git rev-parse --show-toplevel 2>/dev/null)" = "$$(pwd -P)" || { echo "clean-results: $(CURDIR) is not the top of a git checkout, so committed runs cannot be told from generated ones; nothing deleted (remove run folders under results/ by hand)" >&2; exit 2; }
+	git clean -d -x $(if $(filter 1,$(DRY)),-n,-f) -- results/
