@@ -174,11 +174,11 @@ PROFILES: dict[str, Profile] = {
                                   voxcnn_epochs=3, voxcnn_batch_size=16, voxcnn_lr=3e-3,
                                   voxcnn_views_per_object=None)),
     # cpu: every training object (ModelNet10: 3,991), few views each: object variety matters more
-    # than views per object (40 views at the same steps gained nothing: scripts/model_table.sh 4m); small images
-    # keep an epoch of ~72k images near three minutes on 2 cores for the narrower network (~380 images/s; the wider
+    # than views per object (40 views at the same steps gained nothing: experiments/cpu-modelnet10-vox30/26-v40.toml);
+    # small images keep an epoch of ~72k images near three minutes on 2 cores for the narrower network (~380 images/s; the wider
     # layers run at ~450-650). The recipe (rotation bins, roll augmentation, voxel shape loss, classes drawn
-    # uniformly, shared layers (1024, 512, 512), 60 epochs) is the one chosen on the validation objects (class
-    # balance: issue 29, scripts/model_table.sh 2b; the wider layers 4k; 60 epochs 4l). Every test object, 3 paired
+    # uniformly, shared layers (1024, 512, 512), 60 epochs) is the one chosen on the validation objects (the
+    # specs bal30, fc1024 and e60 in experiments/cpu-modelnet10-vox30/). Every test object, 3 paired
     # views each; the slow searches (BEO 3-DOF, ICP) on the first view of 10 objects per class (100 queries, a
     # subset of the same pairs).
     "cpu": Profile(
@@ -220,7 +220,7 @@ PROFILES: dict[str, Profile] = {
         baselines=BaselinesConfig(beo_so3_grid=8192),
         evaluation=EvaluationConfig(eval_views=3, beo_1dof_test_per_class=20, beo_3dof_test_per_class=5),
         needs_gpu=True),
-    # gpu-lease: what fits one lent GPU's 30 minutes (scripts/device_job.py): the paper's network and images,
+    # gpu-lease: what fits one lent GPU's 30 minutes (maintainer/device_job.py): the paper's network and images,
     # streamed, 100 fresh views per training object in one epoch (359 k image passes, 2.8 % of full's), then
     # HBEO on the whole test split, 3 paired views. Sized before any GPU measurement: a lease measures its
     # images/s and says in lease.json how long it took.
