@@ -18,8 +18,8 @@ class Stacked:
     the items along the first dimension. It reads as the sequence of its items (views of ``batch``);
     :func:`collate` hands the loop ``batch`` itself, where torch's default collation would index every
     tensor once an item and stack the pieces again: on a GPU six small launches an image and a stack a key,
-    every step, while the device waits (fourth lease, 2026-11-27: about half of a streamed step was host
-    work between kernels)."""
+    every step, while the device waits (measured on an H200: about half of a streamed step was host work
+    between kernels; ``benchmarks/README.md``, *Training and evaluation on a GPU*)."""
 
     def __init__(self, batch: dict):
         if not batch or not all(torch.is_tensor(v) for v in batch.values()):

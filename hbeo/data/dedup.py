@@ -5,7 +5,7 @@ groups of near-duplicates (:func:`twin_groups`: connected components of same-cla
 IoU reaches a threshold) and the grouped validation split (:func:`split_groups`: whole groups go to
 validation, class by class). Why: ModelNet's training split holds many near-duplicate models, so an
 object held out at random often keeps a twin in training, and validation then scores higher than the
-test split (issue 29; measured in ``benchmarks/bench_duplicates.py``).
+test split (measured in ``benchmarks/bench_duplicates.py``).
 
 Grids are as stored (ModelNet objects are aligned per class; no alignment search here): bool or 0/1
 (n, 30, 30, 30) or (n, 27000). IoU is |a & b| / |a | b| over occupied voxels, computed per class with

@@ -41,7 +41,7 @@ from hbeo.rundir import RunDir
 from hbeo.storage import append_csv, atomic_text, json_text, sha256_file, tree_digest
 
 SEED = 0
-#: HBEO with the extensions chosen on validation (issue 16): test-time roll averaging (bins models) and
+#: HBEO with the extensions chosen on validation objects: test-time roll averaging (bins models) and
 #: the verify step (:class:`hbeo.model.verify.VerifyConfig`'s defaults). Not the paper's method.
 VERIFIED = "hbeo-verify"
 VERIFIED_ROLLS = 4

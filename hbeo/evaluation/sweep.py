@@ -1,4 +1,4 @@
-"""Choosing the verify step's settings on validation objects (issue 16): every candidate scored on
+"""Choosing the verify step's settings on validation objects: every candidate scored on
 the same queries.
 
 :func:`verify_sweep` renders each validation view once, runs the network once per view, then

@@ -223,8 +223,8 @@ class ModelView(Dataset):
         first march; none on the CPU, where a larger march is no faster) and serves the next batches
         from them. On a GPU a march is mostly a fixed cost of launches and host syncs: a streamed step
         of 64 images at 80x60 took 79 ms on an H200, one of 128 at 320x240 191 ms
-        (``docs/history/*/lease-2026-11-27``), and the marcher alone rendered 404 images/s in batches of
-        32 and 2,722 in batches of 2,048 at 320x240 (lease-2026-11-26b). Reads outside the plan render
+        (the device job's leases, ``docs/history/gpu-*``), and the marcher alone rendered 404 images/s in
+        batches of 32 and 2,722 in batches of 2,048 at 320x240 (``benchmarks/README.md``). Reads outside the plan render
         alone, as before."""
         self._plan, self._start = np.asarray(order, np.int64), int(start)
         self._cursor, self._chunk = 0, None
@@ -306,7 +306,7 @@ class ModelView(Dataset):
 #: ray-marcher reached 2,722 images/s at 320x240 in batches of 2,048 on an H200, 1,028 in batches of 128:
 #: lease-2026-11-26b)
 RENDER_AHEAD = 2048
-#: peak bytes a ray of a march holds (its state and temporaries; measured on the CPU, 2026-11-27: 101 at
+#: peak bytes a ray of a march holds (its state and temporaries; measured on the CPU: 101 at
 #: 1,024 images of 80x60, 128 at 4,096)
 MARCH_BYTES_PER_RAY = 128
 

@@ -1,4 +1,4 @@
-"""Predict, then verify: HBEONet's hypotheses checked against the observed depth (issue 16).
+"""Predict, then verify: HBEONet's hypotheses checked against the observed depth (ours, not the paper's).
 
 HBEONet answers in one pass but cannot see what it got wrong; BEO checks a pose against the depth
 but must search for it. Verify does both: the network proposes, the depth decides.

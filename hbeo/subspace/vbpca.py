@@ -34,8 +34,8 @@ def fix_signs(columns: np.ndarray) -> np.ndarray:
     """Columns (d, k) -> the same columns, each with the sign that makes its entry of largest magnitude
     positive (magnitudes compared to 6 significant digits of the column's largest, the first in order on a
     tie, as for a mirror-antisymmetric shape mode). An eigenvector's sign is whatever the LAPACK build
-    returns: two machines fitting the same grids got 12 of the 143 shared directions with opposite signs
-    (2026-11-28), so models trained on them learned opposite coefficients. Span and orthonormality are
+    returns: two machines fitting the same grids got 12 of the 143 shared directions with opposite signs,
+    so models trained on them learned opposite coefficients. Span and orthonormality are
     unchanged; an all-zero column stays as it is."""
     if columns.size == 0:
         return columns
