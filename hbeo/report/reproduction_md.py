@@ -45,11 +45,11 @@ def _read(path: Path) -> str:
 
 
 def _git_line(man: dict) -> str:
+    """Where the run came from, by commit: a clone has no tags, so the manifest's ``git_tag`` is not named."""
     nbs = man.get("notebooks", {})
     commits = sorted({n.get("commit") or "?" for n in nbs.values()})
     clean = not any(n.get("dirty") for n in nbs.values())
-    tag = f", tag `{man['git_tag']}`" if man.get("git_tag") else ""
-    where = (f"commit `{commits[0][:10]}`{tag}" if len(commits) == 1
+    where = (f"commit `{commits[0][:10]}`" if len(commits) == 1
              else "commits " + ", ".join(f"`{c[:10]}`" for c in commits) + " (notebooks at different commits)")
     return f"{where}, {'clean tree' if clean else 'uncommitted changes outside results/'}"
 
