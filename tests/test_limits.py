@@ -173,8 +173,9 @@ def test_network_params_counts_what_hbeonet_allocates(kw):
 def test_network_check_names_the_largest_width_that_fits():
     from hbeo.model.network import NetConfig, check_network, network_params
     cfg = NetConfig(image_size=(80, 60), n_classes=10, n_coeffs=1, fc=(10 ** 6, 256, 256))
-    with pytest.raises(ResourceError, match=r"^--fc 1000000,256,256: HBEONet would have [\d,]+ parameters at 80x60 "
-                                            r"input; .* 1.0 GB available; the largest W1 that fits .* is ([\d,]+)$") as e:
+    with pytest.raises(ResourceError, match=r"^--fc 1000000,256,256: HBEONet would have [\d,]+ parameters at "
+                                            r"80x60 input; .* 1.0 GB available; the largest W1 that fits .* is "
+                                            r"([\d,]+)$") as e:
         check_network(cfg, memory=GB)
     fit = int(str(e.value).rsplit(" ", 1)[1].replace(",", ""))
     assert network_params(NetConfig(image_size=(80, 60), n_classes=10, n_coeffs=1, fc=(fit, 256, 256))) \
