@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# The issue-5 target runs: the `cpu` profile on the real ModelNet10 grids, evaluated on the whole
+# The first target runs, compared on the test split before the validation protocol existed: the `cpu` profile on the real ModelNet10 grids, evaluated on the whole
 # test split (907 usable objects, one view each). Models: the paper's axis-angle head, the 6-D head and the
 # rotation-bins head (plain, with camera-roll augmentation, and with roll augmentation for 20 and 30 epochs) under
 # uniform SO(3) views, and the 6-D head under upright views. Writes into results/cpu-modelnet10-vox30*
 # and docs/history/cpu-modelnet10-vox30
-# (about 4 h on a 2-core CPU; each model ~20 min per 10 epochs). Usage: bash scripts/cpu_targets.sh [PY]
+# (about 4 h on a 2-core CPU; each model ~20 min per 10 epochs). Usage: bash maintainer/cpu_targets.sh [PY]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${1:-.venv/bin/python}
@@ -13,11 +13,11 @@ R=results/cpu-$D
 RU=results/cpu-$D-upright
 H=docs/history/cpu-$D      # metrics of models the run folder no longer holds (RunDir.history)
 # The cpu profile at the time: 10 epochs, the paper's recipe unless a flag says otherwise (the profile now
-# trains issue 16's recipe for 30 epochs). Evaluation views are now the paired protocol's (issue 17), so a rerun
+# trains the recipe chosen on validation). Evaluation views are now the paired protocol's, so a rerun
 # scores other views of the same objects than the committed docs/history/cpu-modelnet10-vox30/eval_so3_*.json files (docs/history.md).
 P="--epochs 10 --rotation axis_angle --no-augment-roll --shape-loss coeffs"
-# (the axis-angle model was the run's model.hbeo until issue 16's reference model replaced it:
-#  scripts/model_table.sh)
+# (the axis-angle model was the run's model.hbeo until the reference model replaced it: the model table's
+#  first row, experiments/cpu-modelnet10-vox30/00-axis-angle.toml)
 $PY -m hbeo train --dataset $D --profile cpu $P --name model_axis_angle.hbeo --quiet
 $PY -m hbeo evaluate --model $R/model_axis_angle.hbeo --dataset $D --split test --views 1 --seed 0 --quiet --out $H/eval_so3_axis_angle.json
 $PY -m hbeo train --dataset $D --profile cpu $P --rotation 6d --name model_6d.hbeo --quiet

@@ -1,7 +1,7 @@
 """The device job: train a run's model in the background, evaluate it with the paired protocol, and
 leave what must come back under a lent GPU machine's transfer limits.
 
-    python scripts/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
+    python maintainer/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
                                  [--out DIR] [--wait SECONDS] [--budget SECONDS] [--split test|val]
                                  [--data stream] [--backend torch] [--class-balance sampler] [--epochs N] [--seed S]
                                  [--render-ahead N] [--loss-weights C,O,P] [--fc W1,W2,W3]
@@ -37,8 +37,8 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    one that comes back, and ``lease.json`` keeps the unrounded file's SHA-256.
 
 Exit status 0 when the job is finished and packed, 3 while the worker is still running, 1 if it failed
-(its ``job.log`` is packed either way). ``bash scripts/device_job.sh`` wraps it for the device (carried
-wheels installed first); ``scripts/device_prepare.sh`` makes what must travel.
+(its ``job.log`` is packed either way). ``bash maintainer/device_job.sh`` wraps it for the device (carried
+wheels installed first); ``maintainer/device_prepare.sh`` makes what must travel.
 """
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The device job's entry on a lent GPU machine (run from the repository root, with .device carried):
-#     bash scripts/device_job.sh [device_job.py options]     e.g. --profile gpu-lease --wait 540
+#     bash maintainer/device_job.sh [device_job.py options]     e.g. --profile gpu-lease --wait 540
 # Installs the carried wheels (.device/whl) into /tmp/site, points HBEO_VOX30 at the carried grids, then runs
-# scripts/device_job.py, which starts or resumes the background worker, waits, and packs $OUT.
+# maintainer/device_job.py, which starts or resumes the background worker, waits, and packs $OUT.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 DEV=${HBEO_DEVICE_DIR:-.device}
@@ -13,4 +13,4 @@ if compgen -G "$DEV/whl/*.whl" > /dev/null; then
 fi
 [ -f "$DEV/modelnet10_vox30.npz" ] && export HBEO_VOX30=${HBEO_VOX30:-$DEV/modelnet10_vox30.npz}
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
-exec "${PYTHON:-python3}" scripts/device_job.py "$@"
+exec "${PYTHON:-python3}" maintainer/device_job.py "$@"

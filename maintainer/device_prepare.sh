@@ -2,8 +2,8 @@
 # Make what the device job needs to travel to a lent GPU machine, in .device/ (ignored by git, named in
 # the device tool's `carry`): the 30^3 grid file and wheels of what the device image lacks (its Python is
 # 3.12 with numpy 2 and torch 2.11 + CUDA; trimesh and pooch are not there, nor embreex: EMBREE=1 adds it). Then, on the device:
-#     bash scripts/device_job.sh            (see scripts/device_job.py; README "Paper scale on one GPU")
-# Usage: bash scripts/device_prepare.sh [DEST]       (DEST default .device; WHEELS=0 skips the downloads)
+#     bash maintainer/device_job.sh            (see maintainer/device_job.py; README "Paper scale on one GPU")
+# Usage: bash maintainer/device_prepare.sh [DEST]       (DEST default .device; WHEELS=0 skips the downloads)
 # Exit 3 when the working tree and DEST together pass the device tool's 64 MiB (the largest files listed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -33,7 +33,7 @@ if git rev-parse --git-dir > /dev/null 2>&1; then
   limit=${LIMIT_MIB:-64}                     # the device tool's; a test sets another to reach the branch below
   echo "to travel: $((total / 1048576)) MiB (working tree $((tree / 1048576)) MiB + $DEST $((dest / 1048576)) MiB; limit $limit MiB)"
   if [ "$total" -gt $((limit * 1048576)) ]; then
-    echo "over the device tool's $limit MiB: run 'bash scripts/device_tree.sh slim' (the committed model files stay" \
+    echo "over the device tool's $limit MiB: run 'bash maintainer/device_tree.sh slim' (the committed model files stay" \
          "behind; 'restore' after the call). The largest files that travel:" >&2
     { git ls-files -z; git ls-files -z -o --exclude-standard; } | du -b --files0-from=- 2>/dev/null | sort -rn | awk 'NR <= 5' >&2   # awk reads it all: head would end sort with SIGPIPE (exit 141 under pipefail)
     exit 3

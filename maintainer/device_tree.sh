@@ -3,11 +3,11 @@
 # (tracked files and untracked ones git does not ignore) and refuses more than 64 MiB; the reference runs' model
 # files (results/*/model.hbeo) and executed notebooks (results/*/*.ipynb, figures inline) are most of the tree,
 # and the device job needs none of them.
-#     bash scripts/device_tree.sh slim       before the device call: untrack them in the index, move them into
+#     bash maintainer/device_tree.sh slim       before the device call: untrack them in the index, move them into
 #                                            .device-aside/ (ignored in .git/info/exclude; a file that .gitignore
 #                                            un-ignores, as results/cpu-procedural/model.hbeo, would travel if only
 #                                            excluded there), nothing is committed
-#     bash scripts/device_tree.sh restore    after it: move them back, track them again, drop the exclude lines
+#     bash maintainer/device_tree.sh restore    after it: move them back, track them again, drop the exclude lines
 # `slim` refuses a tree with staged changes (restore would mix them up); commit first.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -20,7 +20,7 @@ case "${1:-}" in
       echo "error: the index has staged changes; commit or unstage them first" >&2; exit 2
     fi
     if grep -qF "$MARK" "$EXCLUDE" 2>/dev/null; then
-      echo "error: already slim (run: bash scripts/device_tree.sh restore)" >&2; exit 2
+      echo "error: already slim (run: bash maintainer/device_tree.sh restore)" >&2; exit 2
     fi
     mapfile -t files < <(git ls-files -- 'results/*/model.hbeo' 'results/*/*.ipynb')
     [ ${#files[@]} -gt 0 ] || { echo "nothing to leave behind"; exit 0; }
@@ -49,6 +49,6 @@ case "${1:-}" in
     echo "tracked again: ${files[*]}"
     ;;
   *)
-    echo "usage: bash scripts/device_tree.sh slim|restore" >&2; exit 2
+    echo "usage: bash maintainer/device_tree.sh slim|restore" >&2; exit 2
     ;;
 esac

@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
-# The reference run (scripts/reference_run.sh step 1) made in two sessions when one is too short for it: on 2 cores
-# the cpu profile's run takes about 4.5 h (HBEONet's 60 epochs about 2.5 h of it) and a session 3 h, and nothing
-# outside the repository survives a session. So the run's notebooks 01-04 are made in the first session, in a clean
-# clone at a tagged commit, and their products are committed to a stage folder ($R-stage); the next session finishes
+# The reference run (maintainer/reference_run.sh step 1) made in two sittings when the machine is lent for less time than
+# the run takes: on 2 cores the cpu profile's run takes about 4.5 h (HBEONet's 60 epochs about 2.5 h of it), and a
+# machine that is lent for about 3 h keeps nothing outside what is committed. So the run's notebooks 01-04 are made in the first sitting, in a clean
+# clone at a tagged commit, and their products are committed to a stage folder ($R-stage); the next sitting finishes
 # the same run from them, in a new clean clone at the same commit. Nothing is staged that would not be committed when
 # the run lands (the executed notebooks, tables, figures, training logs and model.hbeo: the same bytes, so the
 # repository's history grows by nothing more); no checkpoint is staged unless notebook 04 was stopped after HBEONet's
-# training finished or the session ended during it (CHECKPOINT=1 or cut below).
+# training finished or the sitting ended during it (CHECKPOINT=1 or cut below).
 #
-#   save CLONE     (session 1, after `make reproduce PROFILE=$P DATASET=$D` in CLONE finished notebook 04)
+#   save CLONE     (sitting 1, after `make reproduce PROFILE=$P DATASET=$D` in CLONE finished notebook 04)
 #                  copies the run folder's files that the clone's commit does not hold as they are now, less what
 #                  this checkout's .gitignore keeps out of a stage folder (checkpoints, renderings, grids, subspace,
 #                  the option models), to $R-stage/ here, with STAGE.md saying what they are. Commit that folder.
@@ -16,11 +16,11 @@
 #                  its option trainings and evaluation (~15 min): HBEONet's final checkpoint is staged as well
 #                  (~70 MB, `git add -f`: the one staged file the landed run does not keep), notebook 04's own later
 #                  products are not, and finish runs notebook 04 again (it trains nothing: the checkpoint is final).
-#                  CHECKPOINT=cut, when the session ended during HBEONet's training itself: its latest checkpoint is
+#                  CHECKPOINT=cut, when the sitting ended during HBEONet's training itself: its latest checkpoint is
 #                  staged (~70 MB, `git add -f`) with subspace.sha256 (the run's subspace.npz), nothing else of
 #                  notebook 04 (no model.hbeo); finish then fits the subspace again (notebook 02's fit, which must
 #                  give the staged bytes, or it stops) and notebook 04 resumes the training from the checkpoint.
-#   finish CLONE   (session 2, CLONE a new clean clone at the manifest's git_commit) empties the clone's run folder
+#   finish CLONE   (sitting 2, CLONE a new clean clone at the manifest's git_commit) empties the clone's run folder
 #                  of models and metrics (as --fresh does), copies the stage into it, writes the run's subspace from
 #                  model.hbeo's own basis (notebook 02 is not run again: a subspace fitted again must not differ
 #                  from the one HBEONet was trained with), rebuilds the grids and the rendered training set that
@@ -28,13 +28,13 @@
 #                  same bytes; a cut training's subspace fitted again that differs on another CPU is taken from the
 #                  seed-0 run's model.hbeo when that gives the staged sha256), runs notebooks 05-08 (04-08 after CHECKPOINT=1 or cut; `reproduce --only`, which writes
 #                  REPRODUCTION.md), then
-#                  scripts/reference_run.sh's steps after the run (SKIP_RUN=1). The manifest then holds 01-04's
-#                  wall times from session 1 and 05-08's from session 2, all at one commit.
-#   Then land the clone's run folder as scripts/reference_run.sh step 4 says, and `git rm -r $R-stage`.
-# The same for a training seed's run (scripts/seed_runs.sh: `make reproduce SEED=S`, results/cpu-$D-seedS, its
+#                  maintainer/reference_run.sh's steps after the run (SKIP_RUN=1). The manifest then holds 01-04's
+#                  wall times from sitting 1 and 05-08's from sitting 2, all at one commit.
+#   Then land the clone's run folder as maintainer/reference_run.sh step 4 says, and `git rm -r $R-stage`.
+# The same for a training seed's run (maintainer/seed_runs.sh: `make reproduce SEED=S`, results/cpu-$D-seedS, its
 # stage $R-stage): SEED=S, and without reference_run.sh's later steps (they score the reference's model); its
 # model.hbeo, staged, then lands with the run.
-# Usage: bash scripts/reference_stage.sh save|finish CLONE   (run from this checkout; P=PROFILE, D=DATASET, SEED:
+# Usage: bash maintainer/reference_stage.sh save|finish CLONE   (run from this checkout; P=PROFILE, D=DATASET, SEED:
 # default cpu, modelnet10-vox30, 0; AFTER=0: not reference_run.sh's later steps; HBEO_VOX30 as for the run)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -44,7 +44,7 @@ D=${D:-modelnet10-vox30}
 SEED=${SEED:-0}
 R=results/$P-$D$([ "$SEED" = 0 ] || echo "-seed$SEED")
 S=$R-stage
-[ $# = 2 ] || { echo "usage: bash scripts/reference_stage.sh save|finish CLONE" >&2; exit 2; }
+[ $# = 2 ] || { echo "usage: bash maintainer/reference_stage.sh save|finish CLONE" >&2; exit 2; }
 CLONE=$(cd "$2" && pwd)
 die() { echo "reference_stage.sh: $*" >&2; exit 1; }
 unchanged() {  # unchanged PATH: the clone's commit holds the file at PATH (relative to the clone) as it is now
@@ -126,7 +126,7 @@ lines = [f"# A run in progress: the first notebooks of `{m['git_tag'] or m['git_
          f"Made by `make reproduce PROFILE={m['profile']} DATASET={m['dataset']}{make_seed}` in a clean clone at commit "
          f"`{m['git_commit']}`{f' (tag `' + m['git_tag'] + '`)' if m['git_tag'] else ''}, git_dirty "
          f"{str(m['git_dirty']).lower()}; {sys.argv[3]} files, "
-         "staged by `bash scripts/reference_stage.sh save CLONE` because the run does not fit one session.", "",
+         "staged by `bash maintainer/reference_stage.sh save CLONE` because the run does not fit one session.", "",
          "| notebook | wall s | finished (UTC) |", "| --- | ---: | --- |"]
 lines += [f"| {k} | {v['wall_s']} | {v['finished_utc']} |" for k, v in nb.items()]
 last = "04" if "04_train" in nb else "03"
@@ -145,7 +145,7 @@ elif last == "03":
               "run): `train_model/checkpoint.pt` is that training's final checkpoint (added with `git add -f`), from "
               "which notebook 04, run again at the same commit, trains nothing (provenance.json: resumed_from_step)."]
 lines += ["", f"Not a result yet: notebooks {int(last) + 1:02d}-08 have not run. The next session finishes the run from these files "
-          f"(`git clone`, `git checkout {m['git_commit']}`, `{env}bash scripts/reference_stage.sh finish CLONE`), lands it "
+          f"(`git clone`, `git checkout {m['git_commit']}`, `{env}bash maintainer/reference_stage.sh finish CLONE`), lands it "
           "and removes this folder.", ""]
 open(sys.argv[2], "w").write("\n".join(lines))
 PY
@@ -191,7 +191,7 @@ Run.open('$P', '$D', '$R', training_seed=$SEED).fit_subspace(progress=False)"
   $PY -m hbeo render --profile $P --dataset $D --out $R --split train --quiet
   if finished "$MAIN/$S/manifest.json" 04_train; then todo="05 06 07 08"; else todo="04 05 06 07 08"; fi
   $PY -m hbeo reproduce --profile $P --dataset $D --seed $SEED --only $todo
-  [ "${AFTER:-1}" = 0 ] || [ "$SEED" != 0 ] || SKIP_RUN=1 bash scripts/reference_run.sh $PY
+  [ "${AFTER:-1}" = 0 ] || [ "$SEED" != 0 ] || SKIP_RUN=1 bash maintainer/reference_run.sh $PY
   ;;
 *) die "unknown step $1 (save or finish)" ;;
 esac

@@ -1,4 +1,4 @@
-"""Choose the verify step's settings on validation objects (issue 16): every candidate on the same queries.
+"""Choose the verify step's settings on validation objects: every candidate on the same queries.
 
 Usage: python scripts/tune_verify.py --model results/cpu-modelnet10-vox30/model.hbeo
            [--dataset modelnet10-vox30] [--per-class 10] [--views 1] [--seed 0] [--rolls 1]

@@ -1,4 +1,4 @@
-"""The device job (scripts/device_job.py, device_prepare.sh, device_job.sh) on this CPU with the ``ci`` profile:
+"""The device job (maintainer/device_job.py, device_prepare.sh, device_job.sh) on this CPU with the ``ci`` profile:
 the same scripts a lent GPU machine runs. A call that runs out of waiting leaves the worker running and exits 3;
 a later call waits on; a worker killed mid-training is restarted from its checkpoint; the packed files fit the
 device tool's transfer limits (at most 8 files, 16 MiB each) and the model parts join to the run's model."""
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-JOB = ROOT / "scripts" / "device_job.py"
+JOB = ROOT / "maintainer" / "device_job.py"
 
 
 def _job(run, out, *extra, wait=600):
@@ -87,13 +87,13 @@ def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_
     env = {**os.environ, "WHEELS": "0", "HBEO_VOX30": str(vox30_file), "PY": sys.executable,
            "PYTHONPATH": str(ROOT)}
     dest = tmp_path / "dev"
-    r = subprocess.run(["bash", str(ROOT / "scripts" / "device_prepare.sh"), str(dest)], capture_output=True,
+    r = subprocess.run(["bash", str(ROOT / "maintainer" / "device_prepare.sh"), str(dest)], capture_output=True,
                        text=True, env=env, timeout=120)
     assert r.returncode in (0, 3), r.stderr                      # 3: this tree with dest passes 64 MiB
     assert (dest / "modelnet10_vox30.npz").read_bytes() == Path(vox30_file).read_bytes()
     assert "to travel" in r.stdout and (r.returncode == 0 or "device_tree.sh slim" in r.stderr)
     # over the limit: exit 3 with the largest files listed (sort | head ended with SIGPIPE, 141, in CI)
-    r = subprocess.run(["bash", str(ROOT / "scripts" / "device_prepare.sh"), str(dest)], capture_output=True,
+    r = subprocess.run(["bash", str(ROOT / "maintainer" / "device_prepare.sh"), str(dest)], capture_output=True,
                        text=True, env={**env, "LIMIT_MIB": "0"}, timeout=120)
     assert r.returncode == 3, r.stderr
     listed = r.stderr.split("The largest files that travel:")[1].split()
@@ -135,8 +135,8 @@ def test_device_job_refuses_bad_training_flags(tmp_path):
 def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_and_restore_tracks_them_again(tmp_path):
     import shutil
     repo = tmp_path / "repo"
-    (repo / "scripts").mkdir(parents=True)
-    shutil.copy(ROOT / "scripts" / "device_tree.sh", repo / "scripts")
+    (repo / "maintainer").mkdir(parents=True)
+    shutil.copy(ROOT / "maintainer" / "device_tree.sh", repo / "maintainer")
     # results/b/model.hbeo un-ignored by .gitignore, as results/cpu-procedural/model.hbeo: an exclude line alone
     # would not keep it from travelling
     for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "results/a/01_x.ipynb",
@@ -147,7 +147,7 @@ def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_a
     git("init", "-q")
     git("-c", "user.name=t", "-c", "user.email=t@t", "add", ".")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "x")
-    run = lambda cmd: subprocess.run(["bash", str(repo / "scripts" / "device_tree.sh"), cmd], capture_output=True, text=True)
+    run = lambda cmd: subprocess.run(["bash", str(repo / "maintainer" / "device_tree.sh"), cmd], capture_output=True, text=True)
     travels = lambda: set(git("ls-files").split()) | set(git("ls-files", "-o", "--exclude-standard").split())
     before = travels()
     assert run("slim").returncode == 0

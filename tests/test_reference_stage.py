@@ -1,4 +1,4 @@
-"""scripts/reference_stage.sh on toy git repositories: `save` stages only a run whose notebook 04 finished, and only
+"""maintainer/reference_stage.sh on toy git repositories: `save` stages only a run whose notebook 04 finished, and only
 the run folder's new and changed files that git keeps (never the files --fresh deleted, never ignored ones such as
 checkpoints); `finish` refuses a clone at another commit or with files of its own in the run folder. (The whole
 save-then-finish path on a real run: the ci profile, checked by hand, see the script's commit.)"""
@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-SCRIPT = ROOT / "scripts" / "reference_stage.sh"
+SCRIPT = ROOT / "maintainer" / "reference_stage.sh"
 R = "results/cpu-toy"
 
 
@@ -20,7 +20,7 @@ def git(repo, *args):
 
 
 def stage(main, step, clone, seed=0, **env):
-    return subprocess.run(["bash", str(main / "scripts" / "reference_stage.sh"), step, str(clone)],
+    return subprocess.run(["bash", str(main / "maintainer" / "reference_stage.sh"), step, str(clone)],
                           capture_output=True, text=True,
                           env={"PATH": "/usr/bin:/bin", "D": "toy", "SEED": str(seed), **env})
 
@@ -44,8 +44,8 @@ def repos(tmp_path):
     """A checkout holding the script and the project's .gitignore, and a clone whose run folder has a committed
     old reference."""
     main, clone = tmp_path / "main", tmp_path / "clone"
-    (main / "scripts").mkdir(parents=True)
-    shutil.copy(SCRIPT, main / "scripts")
+    (main / "maintainer").mkdir(parents=True)
+    shutil.copy(SCRIPT, main / "maintainer")
     shutil.copy(ROOT / ".gitignore", main)
     git(main, "init", "-q")
     clone.mkdir()

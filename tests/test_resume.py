@@ -43,7 +43,7 @@ def test_a_run_killed_after_any_step_resumes_to_the_same_weights(tmp_path, unint
 
 
 def test_a_finished_checkpoint_brought_alone_gives_its_weights_and_its_log(tmp_path, uninterrupted):
-    """A finished training's checkpoint copied into another folder (scripts/seed_runs.sh's CKPT2): training
+    """A finished training's checkpoint copied into another folder (maintainer/seed_runs.sh's CKPT2): training
     there again trains nothing, returns the same weights and writes the log from the checkpoint's history."""
     tr, va = job.data()
     train(job.TASK, tr, va, tmp_path / "a", job.config())

@@ -268,7 +268,7 @@ def load_all(root=None) -> list[Experiment]:
     stray = [p for p in sorted(root.glob("*/*")) if p.suffix == ".toml" and not _FILE.match(p.name)]
     if stray:
         load(stray[0])
-    exps = sorted((load(p) for p in root.glob("*/*.toml")), key=lambda e: (e.run_name, e.order))
+    exps = sorted((load(p) for p in root.glob("*/*.toml")), key=lambda e: (e.run_name, e.order, e.name))
     by_name: dict[str, Experiment] = {}
     for e in exps:
         if e.name in by_name:
@@ -339,6 +339,26 @@ def _inputs(argv: list[str]) -> list[str]:
     return files
 
 
+def _models_made(argv: list[str]) -> list[str]:
+    """The model file a ``train`` or ``reproduce`` command writes (repository-relative), if it names its folder."""
+    sub, out = _subcommand(argv), _option(argv, "--out")
+    if sub not in ("train", "reproduce") or not out:
+        return []
+    return [f"{out[0].rstrip('/')}/{(_option(argv, '--name') or ['model.hbeo'])[0] if sub == 'train' else 'model.hbeo'}"]
+
+
+def _rooted(argv: list[str], repo: Path) -> list[str]:
+    """``argv`` with a relative ``--out`` of an hbeo command made absolute under ``repo``: every path of a spec is
+    taken from the repository's top folder, whatever the command does with a relative one."""
+    if _subcommand(argv) is None:
+        return argv
+    out = list(argv)
+    for i, a in enumerate(out[:-1]):
+        if a == "--out" and not Path(out[i + 1]).is_absolute():
+            out[i + 1] = str(repo / out[i + 1])
+    return out
+
+
 def run(name: str, root=None, dry_run: bool = False, echo: Callable[[str], None] = print) -> list[Path]:
     """Run experiment ``name``'s commands in order (train, val, test, compare) in the repository; with ``dry_run``
     only print them. Returns the files its ``[writes]`` lists. Refuses before running anything when the profile
@@ -351,6 +371,7 @@ def run(name: str, root=None, dry_run: bool = False, echo: Callable[[str], None]
     for c in changes:
         echo(f"# warning: {c}")
     makers = {Path(f).name: e.name for e in exps for w in WRITES for f in e.writes[w]}
+    makers.update({m: e.name for e in exps for _, c in e.all_commands() for m in _models_made(command_argv(c))})
     for phase, c in exp.all_commands():
         echo(f"[{phase}] {c}")
         if dry_run:
@@ -358,10 +379,11 @@ def run(name: str, root=None, dry_run: bool = False, echo: Callable[[str], None]
         argv = command_argv(c, exp.path)
         for f in _inputs(argv):
             if not (exp.repo / f).exists():
-                who = makers.get(Path(f).name) or ", ".join(exp.needs) or "another experiment"
-                raise HBEOError(f"{exp.repo / f}: missing; {exp.name} reads it ({phase} command {c!r}); it is made "
-                                f"by experiment {who} (python -m hbeo experiment run {who.split(',')[0]})")
-        done = subprocess.run(argv, cwd=exp.repo)
+                who = makers.get(f) or makers.get(Path(f).name)
+                made = f"it is made by experiment {who} (python -m hbeo experiment run {who})" if who else \
+                    "no experiment's commands make it"
+                raise HBEOError(f"{exp.repo / f}: missing; {exp.name} reads it ({phase} command {c!r}); {made}")
+        done = subprocess.run(_rooted(argv, exp.repo), cwd=exp.repo)
         if done.returncode:
             raise HBEOError(f"{exp.path}: {phase} command failed (exit status {done.returncode}): {c}")
     written = [exp.repo / f for w in WRITES for f in exp.writes[w]]

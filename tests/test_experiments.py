@@ -1,0 +1,214 @@
+"""Experiments as data (hbeo.report.experiments, python -m hbeo experiment): every model-table row is a spec in
+experiments/, models.json and the model table are generated from the specs, a malformed spec is refused with
+the file named, and run prints or runs the spec's pinned commands."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hbeo.errors import DataError, HBEOError
+from hbeo.report import experiments as ex
+from hbeo.report.model_table import model_table, targets_table
+from hbeo.rundir import RunDir
+
+ROOT = Path(__file__).resolve().parents[1]
+RUN = ROOT / "results" / "cpu-modelnet10-vox30"
+
+
+def cli(*args):
+    return subprocess.run([sys.executable, "-m", "hbeo", "experiment", *args], capture_output=True, text=True,
+                          cwd=ROOT)
+
+
+# ---------------------------------------------------------------------------------------------- the committed specs
+
+def test_list_shows_a_spec_for_every_models_json_row():
+    rows = json.loads(RunDir(RUN).model_rows.read_text())
+    exps = [e for e in ex.load_all() if e.run_name == RUN.name]
+    assert [e.model_row()["label"] for e in exps] == [r["label"] for r in rows]
+    lines = ex.listing().splitlines()
+    assert lines[0].startswith("cpu-modelnet10-vox30:")
+    listed = [line.split()[:3] for line in lines[1:]]
+    assert [(n, name) for n, name, _ in listed] == [(f"{e.order:02d}", e.name) for e in exps]
+    for line, e in zip(lines[1:], exps):
+        assert f" {e.status} " in line and "rule: " in line and "MISSING" not in line, line
+    assert {e.status for e in exps} == set(ex.STATUSES)
+
+
+def test_generated_models_json_is_the_committed_one():
+    exps = ex.load_all()
+    assert ex.rows_text(ex.model_rows(exps, RUN.name)) == RunDir(RUN).model_rows.read_text(), \
+        "models.json is not what the specs give: python -m hbeo experiment table"
+
+
+@pytest.mark.slow
+def test_the_model_table_from_the_specs_is_the_committed_one():
+    """The committed models.json (the specs' rows, above) gives the committed model_table.md (about 40 s: the test
+    cells' bootstrap intervals)."""
+    committed = RunDir(RUN).model_table.read_text()
+    assert model_table(RUN) + "\n" + targets_table(RUN) == committed
+
+
+def test_dry_run_prints_the_pinned_commands_and_runs_nothing():
+    lines = []
+    out = ex.run("fc1024", dry_run=True, echo=lines.append)
+    assert lines[0].startswith("# experiments/cpu-modelnet10-vox30/21-fc1024.toml: chosen;")
+    train = [x for x in lines if x.startswith("[train] ")]
+    assert len(train) == 3 and all("--fc 1024,512,512 --epochs 30 " in x and "--class-balance sampler" in x
+                                   for x in train)
+    assert [x.split("--seed ")[1].split()[0] for x in train] == ["0", "1", "2"]
+    assert any(x.startswith("[test] python -m hbeo evaluate --model results/cpu-modelnet10-vox30/model_fc1024.hbeo ")
+               and x.endswith("--out results/cpu-modelnet10-vox30/eval_test-fc1024.json") for x in lines)
+    assert ROOT / "results/cpu-modelnet10-vox30/eval_val-fc1024.json" in out
+    # the rows made under the old profile pin it: (512, 256, 256), 30 epochs
+    r = cli("run", "11-bal30", "--dry-run")
+    assert r.returncode == 0, r.stderr
+    assert "--fc 512,256,256 --epochs 30 --views 20 --data memory --seed 1 --name model_bal30-s1.hbeo" in r.stdout
+
+
+def test_the_cli_lists_and_refuses_an_unknown_name():
+    r = cli("list")
+    assert r.returncode == 0 and "  27 ref " in r.stdout
+    r = cli("run", "no-such-experiment", "--dry-run")
+    assert r.returncode == 2 and "no experiment named 'no-such-experiment'" in r.stderr
+
+
+# ---------------------------------------------------------------------------------------------- malformed specs
+
+GOOD = """name = "tiny"
+status = "not chosen"
+question = "Does it run?"
+rule = "None: a test."
+seeds = { training = [0], views = 0 }
+
+[commands]
+train = ["python -m hbeo train --dataset procedural --profile ci --out results/ci-tiny --name model_tiny.hbeo"]
+val = ["python -m hbeo evaluate --model results/ci-tiny/model_tiny.hbeo --dataset procedural --split val --out results/ci-tiny/eval_val-tiny.json"]
+
+[writes]
+val = ["results/ci-tiny/eval_val-tiny.json"]
+
+[row]
+label = "tiny"
+val = "eval_val-tiny.json"
+"""
+
+
+def _specs(tmp_path, text=GOOD, name="00-tiny.toml", run="ci-tiny"):
+    d = tmp_path / "experiments" / run
+    d.mkdir(parents=True, exist_ok=True)
+    (d / name).write_text(text)
+    return tmp_path / "experiments", d / name
+
+
+def test_a_good_tiny_spec_loads(tmp_path):
+    root, _ = _specs(tmp_path)
+    (e,) = ex.load_all(root)
+    assert e.name == "tiny" and e.repo == tmp_path and e.run.path == tmp_path / "results" / "ci-tiny"
+    assert e.model_row() == {"label": "tiny", "val": "eval_val-tiny.json", "test": None, "chosen": False}
+
+
+@pytest.mark.parametrize("change,problem", [
+    (lambda t: t.replace('label = "tiny"', 'label = "tiny'), "not valid TOML"),
+    (lambda t: "colour = 1\n" + t, "unknown key.s. colour"),
+    (lambda t: t.replace('rule = "None: a test."\n', ""), "missing key.s. rule"),
+    (lambda t: t.replace('"not chosen"', '"maybe"'), "status 'maybe'"),
+    (lambda t: t.replace('name = "tiny"', 'name = "small"'), "name 'small' is not the file's name"),
+    (lambda t: t + "chosen = true\n", "row.chosen follows from the status"),
+    (lambda t: t.replace("--out results/ci-tiny/eval_val-tiny.json", "--out results/ci-tiny/other.json"),
+     "writes results/ci-tiny/other.json, which writes.val does not list"),
+    (lambda t: t.replace('"python -m hbeo train', '"bash -c train'), "a command is `python -m hbeo"),
+    (lambda t: t.replace("[writes]", '[writes]\ntest = ["results/ci-tiny/eval_test-tiny.json"]'),
+     "the test split is evaluated for chosen rows only"),
+    (lambda t: t.replace('val = "eval_val-tiny.json"', 'val = "eval_val-other.json"'),
+     "row shows eval_val-other.json"),
+    (lambda t: t.replace("seeds = {", 'needs = ["nobody"]\nseeds = {'), "needs 'nobody', which no spec is named"),
+    (lambda t: t.replace("views = 0", 'views = "zero"'), "seeds must be"),
+    (lambda t: t.replace("[row]", "[row]\ntarget_role = \"best\""), "target_role 'best'"),
+    (lambda t: t.replace("seeds = {", "profile = { colour = 1 }\nseeds = {"), "profile names unknown field"),
+])
+def test_a_malformed_spec_is_refused_naming_the_file(tmp_path, change, problem):
+    root, path = _specs(tmp_path, change(GOOD))
+    with pytest.raises(DataError, match=problem) as err:
+        ex.load_all(root)
+    assert str(err.value).startswith(f"{path}: malformed experiment spec: ")
+
+
+def test_bad_file_names_and_clashes_are_refused(tmp_path):
+    root, _ = _specs(tmp_path, name="tiny.toml")
+    with pytest.raises(DataError, match=r"tiny.toml: malformed experiment spec: the file name must be NN-NAME.toml"):
+        ex.load_all(root)
+    (root / "ci-tiny" / "tiny.toml").unlink()
+    _specs(tmp_path)
+    _specs(tmp_path, GOOD.replace('name = "tiny"', 'name = "tiny2"'), name="00-tiny2.toml")
+    with pytest.raises(DataError, match="place 00 is also 00-tiny.toml's"):
+        ex.load_all(root)
+
+
+def test_the_cli_names_the_malformed_file_and_exits_2(tmp_path):
+    root, path = _specs(tmp_path, GOOD.replace('"not chosen"', '"maybe"'))
+    r = cli("list", "--experiments", str(root))
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"error: {path}: malformed experiment spec: status 'maybe'; expected one of " \
+                               f"{', '.join(ex.STATUSES)}"
+
+
+# ---------------------------------------------------------------------------------------------- refusing to run
+
+def test_run_refuses_a_missing_input_naming_the_experiment_that_makes_it(tmp_path):
+    root, _ = _specs(tmp_path)
+    reader = """name = "reader"
+status = "not chosen"
+question = "Does it read?"
+rule = "None: a test."
+needs = ["tiny"]
+seeds = { training = [0], views = 0 }
+
+[commands]
+val = ["python -m hbeo evaluate --model results/ci-tiny/model_tiny.hbeo --split val --out results/ci-tiny/r.json"]
+
+[writes]
+val = ["results/ci-tiny/r.json"]
+
+[row]
+label = "reader"
+val = "r.json"
+"""
+    _specs(tmp_path, reader, name="01-reader.toml")
+    with pytest.raises(HBEOError, match=r"model_tiny.hbeo: missing; reader reads it .* made by experiment tiny "
+                                        r"\(python -m hbeo experiment run tiny\)"):
+        ex.run("reader", root, echo=lambda s: None)
+    assert not (tmp_path / "results").exists()
+
+
+def test_run_refuses_when_the_profile_changed(tmp_path):
+    root, path = _specs(tmp_path, GOOD.replace("seeds = {", "profile = { batch_size = 7 }\nseeds = {"))
+    with pytest.raises(HBEOError, match=r"would not reproduce the row: profile ci's batch_size is 32, the spec was "
+                                        r"made with 7"):
+        ex.run("tiny", root, echo=lambda s: None)
+    lines = []
+    ex.run("tiny", root, dry_run=True, echo=lines.append)      # a dry run says so and prints the commands
+    assert "# warning: profile ci's batch_size is 32, the spec was made with 7" in lines
+
+
+# ---------------------------------------------------------------------------------------------- end to end
+
+@pytest.mark.slow
+def test_a_tiny_spec_runs_at_the_ci_profile_and_tabulates(tmp_path, monkeypatch):
+    """Train two steps, evaluate one view of one object per class on validation, then models.json and the table."""
+    monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
+    text = GOOD.replace("--name model_tiny.hbeo", "--epochs 1 --max-steps 2 --name model_tiny.hbeo --quiet")
+    text = text.replace("--split val --out", "--split val --views 1 --seed 0 --per-class 1 --quiet --out")
+    root, _ = _specs(tmp_path, text)
+    written = ex.run("tiny", root, echo=lambda s: None)
+    assert written == [tmp_path / "results/ci-tiny/eval_val-tiny.json"] and written[0].exists()
+    assert json.loads(written[0].read_text())["split"] == "val"
+    paths = ex.write_table(root)
+    run = RunDir(tmp_path / "results" / "ci-tiny")
+    assert paths == [run.model_rows, run.model_table]
+    assert json.loads(run.model_rows.read_text()) == [{"label": "tiny", "val": "eval_val-tiny.json", "test": None,
+                                                       "chosen": False}]
+    assert "| tiny | no | " in run.model_table.read_text()
+    assert not (ROOT / "results" / "ci-tiny").exists()             # every path taken from the spec's repository
