@@ -51,6 +51,25 @@ def test_the_model_table_from_the_specs_is_the_committed_one():
     assert model_table(RUN) + "\n" + targets_table(RUN) == committed
 
 
+def test_every_committed_command_parses_and_pins_the_profile_s_options():
+    """Each `python -m hbeo` command of a committed spec is a valid command line, and every train command writes
+    out the options whose defaults come from the profile."""
+    from hbeo.cli import _join_list_values, build_parser
+    parser = build_parser()
+    pinned = ("--out", "--rotation", "--shape-loss", "--class-balance", "--fc", "--epochs", "--views", "--data",
+              "--seed", "--name")
+    for e in ex.load_all():
+        for phase, c in e.all_commands():
+            argv = ex.command_argv(c)
+            if argv[1:3] != ["-m", "hbeo"]:
+                assert (ROOT / argv[1]).is_file(), f"{e.path.name}: {argv[1]} is not a script of the repository"
+                continue
+            args = parser.parse_args(_join_list_values(argv[3:]))
+            if args.command == "train":
+                missing = [o for o in pinned if o not in argv]
+                assert not missing and args.augment_roll is not None, f"{e.path.name}: {c} leaves {missing} to the profile"
+
+
 def test_dry_run_prints_the_pinned_commands_and_runs_nothing():
     lines = []
     out = ex.run("fc1024", dry_run=True, echo=lines.append)
