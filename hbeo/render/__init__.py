@@ -2,9 +2,10 @@
 
 Owns sampling viewpoints (:mod:`~hbeo.render.poses`), rendering meshes and grids to depth
 (:mod:`~hbeo.render.renderer`), ray-marching grids to depth in batches in torch
-(:mod:`~hbeo.render.gridcast`), sensor noise (:mod:`~hbeo.render.noise`), the settings and labelled
-views of one object (:mod:`~hbeo.render.views`), the rendered training sets on disk
-(:mod:`~hbeo.render.renderset`) and as torch datasets (:mod:`~hbeo.render.torch_datasets`).
+(:mod:`~hbeo.render.gridcast`) or in one fused Triton kernel (:mod:`~hbeo.render.fused`), sensor
+noise (:mod:`~hbeo.render.noise`), the settings and labelled views of one object
+(:mod:`~hbeo.render.views`), the rendered training sets on disk (:mod:`~hbeo.render.renderset`)
+and as torch datasets (:mod:`~hbeo.render.torch_datasets`).
 Camera intrinsics and frames are defined once in :mod:`hbeo.conventions`.
 
 May import: the foundation modules, :mod:`hbeo.data` and :mod:`hbeo.subspace`.

@@ -29,13 +29,21 @@ Method, per ray ``p(z) = a + z b`` (padded index coordinates, linear in the came
 Memory: per object the field (float32) and the safe distance (uint8) over its box only, about
 50 kB for a ModelNet10 object at R = 30 (a few hundred MB for all of ModelNet10's training grids).
 
+Backends of the march (``backend``): ``torch`` (:meth:`GridCaster._march`, any device, the reference) or
+``triton`` (:func:`hbeo.render.fused.march`: one fused kernel, CUDA, or a CPU under Triton's interpreter);
+``auto`` (the default, or the environment's :data:`BACKEND_ENV`) takes ``triton`` on a CUDA device where
+triton imports, and falls back to ``torch`` with a warning if the kernel fails to build there. Both share
+the per-image set-up (:meth:`GridCaster._rays`).
+
 Imports torch, numpy, scipy, :mod:`hbeo.conventions`, :mod:`hbeo.rotations` (the poses are checked on the host,
-B x 9 numbers, before the march), :mod:`hbeo.limits` (the CPUs for smoothing in worker processes) and
-:mod:`hbeo.render.renderer`.
+B x 9 numbers, before the march), :mod:`hbeo.limits` (the CPUs for smoothing in worker processes),
+:mod:`hbeo.render.renderer` and (the triton backend) :mod:`hbeo.render.fused`.
 """
 from __future__ import annotations
 
 import math
+import os
+import warnings
 
 import numpy as np
 import torch
@@ -48,6 +56,10 @@ from hbeo.rotations import check_rotation_matrices
 LEVEL = 0.5
 _SAFE_MARGIN = math.sqrt(3.0)           # voxels: see the module docstring, step 2
 SAFE_UNITS = 4                          #: safe distances are stored in quarter voxels (uint8)
+#: the march backends (:class:`GridCaster`'s ``backend``)
+BACKENDS = ("auto", "torch", "triton")
+#: environment variable giving the default backend (``auto`` when unset), e.g. ``HBEO_GRIDCAST=torch``
+BACKEND_ENV = "HBEO_GRIDCAST"
 
 
 def object_volume(field: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -125,13 +137,15 @@ def _volumes(grids: list, smooth: float, workers: int | None) -> list:
 class GridCaster:
     """Batched depth renderer of a fixed list of occupancy grids for one camera, in torch.
 
-    ``GridCaster(grids, intrinsics, object_size=1.0, smooth=1.0, device="cpu", step=0.25, refine=8, workers=None)``:
+    ``GridCaster(grids, intrinsics, object_size=1.0, smooth=1.0, device="cpu", step=0.25, refine=8, workers=None,
+    backend=None)``:
     ``grids`` (N, R, R, R) occupancy (or a list of such grids), smoothed once here
     (:func:`hbeo.render.renderer.grid_field`; a non-cubic grid raises ValueError, an empty one
     DataError, a ValueError) and kept on ``device``; ``step``: the march's smallest step, voxels;
     ``refine``: bisections of the bracketing samples; ``workers``: processes that smooth the grids
-    (:func:`_volumes`; None: all CPUs for a large set on a machine with several). :meth:`render` takes
-    object indices and poses.
+    (:func:`_volumes`; None: all CPUs for a large set on a machine with several); ``backend``: the march,
+    ``auto``, ``torch`` or ``triton`` (module docstring; None: :data:`BACKEND_ENV`, else ``auto``), resolved
+    into :attr:`backend`. :meth:`render` takes object indices and poses.
     Deterministic: the same inputs give the same image on the same device.
     """
 
@@ -139,7 +153,8 @@ class GridCaster:
     znear = 0.01
 
     def __init__(self, grids, intrinsics: C.Intrinsics, object_size: float = 1.0, smooth: float = 1.0,
-                 device="cpu", step: float = 0.25, refine: int = 8, workers: int | None = None):
+                 device="cpu", step: float = 0.25, refine: int = 8, workers: int | None = None,
+                 backend: str | None = None):
         if not isinstance(intrinsics, C.Intrinsics):
             raise TypeError(f"intrinsics must be hbeo.conventions.Intrinsics, got {type(intrinsics).__name__}")
         self.intrinsics, self.object_size = intrinsics, _check_size(object_size)
@@ -149,6 +164,7 @@ class GridCaster:
         if self.refine < 0:
             raise ValueError(f"refine must be >= 0, got {refine!r}")
         self.device = torch.device(device)
+        self.backend, self._auto = _resolve_backend(backend, self.device)
         grids = list(grids) if not isinstance(grids, np.ndarray) or grids.ndim != 3 else [grids]
         if not grids:
             raise ValueError("GridCaster needs at least one grid")
@@ -206,7 +222,8 @@ class GridCaster:
 
     def __repr__(self):
         K = self.intrinsics
-        return f"<GridCaster {self.n_objects} grids of {self.resolution}^3, {K.width}x{K.height}, {self.device}>"
+        return (f"<GridCaster {self.n_objects} grids of {self.resolution}^3, {K.width}x{K.height}, {self.device}, "
+                f"{self.backend}>")
 
     # -- public
     def render(self, objects, Rs, ts) -> torch.Tensor:
@@ -235,6 +252,16 @@ class GridCaster:
             i = int(torch.nonzero(near)[0, 0])
             raise ValueError(f"pose {i}: object not entirely beyond z = {self.znear} m (centre at z = "
                              f"{float(ts[i, 2]):.3g} m, bounding radius {self._radius:.3g} m)")
+        if self.backend == "triton":
+            from hbeo.render import fused
+            try:
+                return fused.march(self, obj, *self._rays(obj, Rs, ts))
+            except Exception as err:            # auto only: a kernel that does not build here falls back
+                if not self._auto:
+                    raise
+                warnings.warn(f"GridCaster: the triton march failed ({type(err).__name__}: {err}); "
+                              f"using the torch march", RuntimeWarning, stacklevel=2)
+                self.backend = "torch"
         return self._march(obj, Rs, ts)
 
     # -- the march
@@ -255,15 +282,19 @@ class GridCaster:
         c = torch.lerp(c[:, 0::2], c[:, 1::2], fr[:, 1:2])                           # along y: (n, 2)
         return torch.lerp(c[:, 0], c[:, 1], fr[:, 0])
 
-    def _march(self, obj, Rs, ts):
-        K, dev = self.intrinsics, self.device
-        B, H, W = obj.shape[0], K.height, K.width
-        # p(z) = a + z b in box coordinates (padded index - lo): a = k R^T (-t) + c0 - lo per image,
-        # b = k R^T d per pixel with d = (x_u, y_v, 1); z is the camera depth
+    def _rays(self, obj, Rs, ts):
+        """Per image (float32, on the device): ``M`` (B, 3, 3) = k R^T, ``a`` (B, 3) = k R^T (-t) + c0 - lo and
+        ``ext`` (B, 3) = hi - lo, so the ray of pixel (u, v) is p(z) = a + z b in box coordinates (padded index
+        - lo, voxels), b = M (x_u, y_v, 1), z the camera depth; the box is [0, ext]."""
         M = (self._k * Rs.transpose(1, 2)).float()                          # (B, 3, 3)
         lo_b = self._lo[obj]
         a = (self._k * (Rs.transpose(1, 2) @ -ts[:, :, None])[:, :, 0] + self._c0).float() - lo_b   # (B, 3)
-        ext = self._hi[obj] - lo_b                                            # (B, 3) box size
+        return M, a, self._hi[obj] - lo_b
+
+    def _march(self, obj, Rs, ts):
+        K, dev = self.intrinsics, self.device
+        B, H, W = obj.shape[0], K.height, K.width
+        M, a, ext = self._rays(obj, Rs, ts)
         b = (self._xs[None, None, :, None] * M[:, None, None, :, 0] + self._ys[None, :, None, None]
              * M[:, None, None, :, 1] + M[:, None, None, :, 2])             # (B, H, W, 3)
         inv = 1.0 / b
@@ -320,6 +351,23 @@ class GridCaster:
         w = ((self.level - fl) / (fh - fl).clamp_min(1e-12)).clamp(0, 1)
         depth[ls[:, 0]] = torch.where(fl >= self.level, zl, zl + w * (zh - zl))
         return depth.reshape(B, H, W)
+
+
+def _resolve_backend(backend: str | None, device: torch.device) -> tuple[str, bool]:
+    """(``torch`` or ``triton``, whether chosen by ``auto``) for ``backend`` (None: :data:`BACKEND_ENV`, else
+    ``auto``) on ``device``. ``triton`` needs triton and a CUDA device, or a CPU under Triton's interpreter."""
+    from hbeo.render import fused
+    name = backend if backend is not None else (os.environ.get(BACKEND_ENV, "").strip().lower() or "auto")
+    if name not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
+    if name == "auto":
+        return ("triton" if device.type == "cuda" and fused.available() else "torch"), True
+    if name == "triton":
+        if not fused.available():
+            raise ValueError("backend 'triton' needs triton (pip install triton, or the gpu extra)")
+        if device.type != "cuda" and not fused.interpreting():
+            raise ValueError(f"backend 'triton' needs a CUDA device (or TRITON_INTERPRET=1 on a CPU), got {device}")
+    return name, False
 
 
 def embree_agreement(grids, intrinsics: C.Intrinsics, n_poses: int, seed: int = 0) -> dict:
