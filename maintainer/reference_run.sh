@@ -11,7 +11,7 @@
 #   3. models.json and the model and targets tables (`python -m hbeo experiment table --readme docs/experiments.md`) and
 #      REPRODUCTION.md's summary block.
 #   4. (in the checkout, before the clone's run folder is copied into it) the previous reference retired:
-#      `python maintainer/retire_reference.py --new STEM --label "tag ..., commit ..."` moves its files to
+#      `python maintainer/retire_reference.py --new STEM --label "commit SHA"` moves its files to
 #      docs/history and turns its specs into the previous reference's (maintainer/README.md); then the run folder
 #      copied over without deleting (the ablations' files stay), the new reference's specs written (the target
 #      roles the script printed go to them), and step 3 again in the checkout.

@@ -23,7 +23,7 @@ model name with every flag of its day (as ``11-bal30.toml`` does), then write th
 Moves use ``git mv``; ``--dry-run`` prints the plan and changes nothing.
 
 Usage: python maintainer/retire_reference.py --old ref --new bal30 \\
-           --label "tag repro-cpu-2026-11-26-bal, commit aa98863" [--run results/cpu-modelnet10-vox30] [--dry-run]
+           --label "commit aa98863" [--run results/cpu-modelnet10-vox30] [--dry-run]
 """
 import argparse
 import re
@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     ap.add_argument("--run", default="results/cpu-modelnet10-vox30")
     ap.add_argument("--old", default="ref")
     ap.add_argument("--new", required=True)
-    ap.add_argument("--label", required=True, help="what identifies the retired run, e.g. its tag and commit")
+    ap.add_argument("--label", required=True, help="what identifies the retired run, e.g. its commit")
     ap.add_argument("--dry-run", action="store_true")
     a = ap.parse_args(argv)
     rd = RunDir(ROOT / a.run)

@@ -25,7 +25,7 @@ the pose error's share within 30° raw and modulo each class's symmetry turns, t
 milliseconds per query. Test figures carry 95 % intervals from a bootstrap over test objects
 (:mod:`hbeo.evaluation.intervals`). Files older than ``class_mean_accuracy`` get it from ``per_query``.
 
-:func:`targets_table` sets issue 29's targets (:data:`TARGETS`) beside the test figures of the rows with a
+:func:`targets_table` sets the project's targets (:data:`TARGETS`) beside the test figures of the rows with a
 ``target_role``: ``hbeo`` (HBEO's one network pass), ``hbeo+verify`` (with the project's extensions) and
 ``beo-known`` (BEO given the true pose on the same views: the class-mean bar, read from its file, shown and
 not judged; not a model-table row). Each cell: the figure, met or missed, and a miss's gap.
@@ -234,7 +234,7 @@ def model_table(run) -> str:
 
 @dataclass(frozen=True)
 class Target:
-    """One of issue 29's targets: ``measure`` of a metrics dict (``get``), judged for the rows whose role is
+    """One of the project's targets: ``measure`` of a metrics dict (``get``), judged for the rows whose role is
     in ``bounds`` (role -> bound; None: the reference row's figure of the same measure), at least the bound
     (``at_least``) or at most; ``stretch``: a second, higher bar shown beside it; ``unit``: ``%`` (a share,
     gaps in points), ``ms`` or ``""`` (a plain fraction)."""
@@ -275,7 +275,7 @@ def _min_class(m: dict) -> float:
     return lowest_class(m)[1]
 
 
-#: Issue 29's targets on the test split.
+#: The project's targets on the test split.
 TARGETS = (
     Target("class-mean accuracy, HBEO one pass", class_mean_accuracy, {ONE_PASS: None}, stretch=0.818),
     Target("class-mean accuracy with the project's extensions", class_mean_accuracy, {EXTENDED: 0.818}),
@@ -302,7 +302,7 @@ def _check_role(path: Path, role: str, m: dict) -> None:
 
 
 def targets_table(run) -> str:
-    """Issue 29's targets (:data:`TARGETS`) against the test figures of the ``models.json`` rows that carry a
+    """The project's targets (:data:`TARGETS`) against the test figures of the ``models.json`` rows that carry a
     ``target_role``, one column each: figure and met / missed (with the gap); the ``beo-known`` reference
     (the bar of HBEO's class-mean target, which must score the same queries as the judged rows) shown
     unjudged; ``–`` where a target does not apply to a role."""
