@@ -131,6 +131,9 @@ def _worker(out: str, which: str) -> None:
         res[f"{name}_torch"] = ct.render(obj, R, t).numpy()
         res[f"{name}_triton"] = cf.render(obj, R, t).numpy()
         res[f"{name}_tiling"] = np.array(fused.tiling(K.width, K.height, len(obj), True))
+        if name == "axis_aligned":                  # the GPU's tl.fma branch, which the interpreter rounds twice
+            o, Rs, ts = torch.as_tensor(obj), torch.as_tensor(R), torch.as_tensor(t)
+            res["axis_aligned_fma32"] = fused.march(cf, o, *cf._rays(o, Rs, ts), f64=False).numpy()
         if name == "tiles":
             o, Rs, ts = torch.as_tensor(obj), torch.as_tensor(R), torch.as_tensor(t)
             res["tiles_gpu_tile"] = fused.march(cf, o, *cf._rays(o, Rs, ts), tile=fused.GPU_TILE).numpy()
@@ -172,6 +175,15 @@ def test_bit_equal_on_thin_parts_axis_aligned_rays_and_misses(quick):
     seen = (a > 0).sum(axis=(1, 2)).reshape(6, 5)               # pose x grid; grid 3: the single voxel
     assert seen[:4, [0, 2, 4]].min() > 0 and not seen[4].any() and seen[5].sum() > 0
     assert diff == 0 and flips == 0, (diff, flips, np.abs(a - b).max())
+
+
+def test_the_gpu_fma_branch_runs_and_rounds_within_an_ulp(quick):
+    """F64=False (the GPU's tl.fma): the interpreter rounds it twice, so a few pixels may differ by about an ulp
+    of the depth (measured: 8 of 771 hit pixels, at most 2.4e-7 m, no flip); a wrong FMA would be far off."""
+    a, c = quick["axis_aligned_torch"], quick["axis_aligned_fma32"]
+    both = (a > 0) & (c > 0)
+    assert ((a > 0) != (c > 0)).sum() <= 2 and (a != c).sum() <= 0.05 * (a > 0).sum()
+    assert np.abs(a - c)[both].max() < 1e-5
 
 
 @pytest.mark.slow

@@ -2,10 +2,10 @@
 
 Owns the ``triton`` march backend: one program marches, refines and writes the depth of a tile of
 ``TW x TH`` pixels of ``G`` images (:data:`GPU_TILE`: 16 x 8 pixels of one image on a GPU), every ray's
-state in registers and the object's field read through the cache, with no host synchronisation and no tensor per iteration (the torch march launches ~40 kernels,
-makes ~30 tensors and reads the device three times an iteration). The torch march
-(:meth:`GridCaster._march`) stays the CPU path and the reference; this module reproduces it operation
-by operation.
+state in registers and the object's field read through the cache, with no host synchronisation and no
+tensor per iteration (the torch march launches ~40 kernels, makes ~30 tensors and reads the device three
+times an iteration). The torch march (:meth:`GridCaster._march`) stays the CPU path and the reference;
+this module reproduces it operation by operation.
 
 Inputs (what :meth:`GridCaster._rays` computes, on the caster's device): per image ``M`` (B, 3, 3) float32
 (voxels per metre times R^T), ``a`` (B, 3) float32 (the camera centre in the object's box coordinates,
@@ -35,7 +35,9 @@ Agreement with the torch march (``tests/test_fused.py``)
     ``tl.fma`` as two float32 roundings, so there the kernel takes each FMA in float64 (``F64``: the
     product of two float32 is exact in float64, then one rounding to float64 and one to float32); the
     two differ from a true FMA only when the float64 sum lands exactly halfway between two float32
-    numbers, which no tested pixel met. On a GPU the kernel uses the hardware FMA, and the reference is
+    numbers (no tested pixel differed). With the GPU's ``tl.fma`` instead (``f64=False``), which the
+    interpreter rounds twice, 8 of 771 hit pixels of the 25x19 test differ, by at most 2.4e-7 m, and none
+    flips: the branch a GPU runs is exercised too. On a GPU the kernel uses the hardware FMA; the reference is
     the torch march on the same GPU, whose kernels (CUDA's ``lerp`` and ``norm``) may round differently from
     torch's CPU ones: bit-equality is not claimed there; ``benchmarks/bench_gpu_first_minute.py`` measures
     the share of pixels that differ, the largest depth difference and the hit/miss flips.
@@ -74,7 +76,7 @@ def available() -> bool:
 
 def interpreting() -> bool:
     """Whether Triton's interpreter is on (``TRITON_INTERPRET=1``): kernels then run on CPU tensors in numpy."""
-    return os.environ.get("TRITON_INTERPRET", "0").strip().lower() in ("1", "true", "on", "yes")
+    return os.environ.get("TRITON_INTERPRET", "0").strip().lower() in ("1", "true", "on", "yes", "y")
 
 
 # -- the kernel (plain functions; :func:`kernel` wraps each in triton.jit)
@@ -260,12 +262,13 @@ def tiling(width: int, height: int, batch: int, interpret: bool) -> tuple[int, i
 
 
 def march(caster, obj: torch.Tensor, M: torch.Tensor, a: torch.Tensor, ext: torch.Tensor,
-          tile: tuple[int, int, int] | None = None) -> torch.Tensor:
+          tile: tuple[int, int, int] | None = None, f64: bool | None = None) -> torch.Tensor:
     """Depth (B, H, W) float32 on the caster's device, metres, 0 = miss, of objects ``obj`` (B,) (int64,
     on the device) with the per-image ray set-up ``M`` (B, 3, 3), ``a`` (B, 3), ``ext`` (B, 3) (float32,
     :meth:`hbeo.render.gridcast.GridCaster._rays`). No host read; one launch per :data:`MAX_GROUPS` tiles
-    of images. ``tile``: (TW, TH, G), powers of two (None: :func:`tiling`). Needs a CUDA device, or CPU
-    tensors under Triton's interpreter."""
+    of images. ``tile``: (TW, TH, G), powers of two (None: :func:`tiling`); ``f64``: FMAs through float64
+    (None: under the interpreter only; False there runs the GPU's ``tl.fma``, which the interpreter rounds
+    twice). Needs a CUDA device, or CPU tensors under Triton's interpreter."""
     from hbeo.render.gridcast import SAFE_UNITS
     interpret = interpreting()
     dev = caster.device
@@ -294,7 +297,7 @@ def march(caster, obj: torch.Tensor, M: torch.Tensor, a: torch.Tensor, ext: torc
             kern[(tiles, -(-(j - i) // G))](
                 caster._field, caster._safe, caster._xs, caster._ys, par[i:j], off[i:j], out[i:j], j - i, H, W,
                 sx, sy, float(caster.znear), float(caster.step), float(caster.level), 1.0 / SAFE_UNITS, max_steps,
-                TW=TW, TH=TH, G=G, REFINE=int(caster.refine), F64=interpret,
+                TW=TW, TH=TH, G=G, REFINE=int(caster.refine), F64=interpret if f64 is None else bool(f64),
                 num_warps=max(1, min(8, G * TW * TH // 32)), enable_fp_fusion=False)
     return out
 
