@@ -10,6 +10,8 @@
 #                    pip install .[render,dask,notebooks,book,test] under the lock's versions but numpy>=2, no pyrender
 #   make book        render a run folder's executed notebooks, tables and figures to a static HTML site that
 #                    opens offline: results/$(PROFILE)-$(DATASET)/book/index.html (RUN=DIR: another run folder)
+#   make docs        set up, then build the documentation site (Sphinx + MyST-NB, offline, no network when opened):
+#                    docs/_build/html/index.html
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
@@ -19,7 +21,7 @@ SEED   ?= 0
 RUN    ?= results/$(PROFILE)-$(DATASET)$(if $(filter-out 0,$(SEED)),-seed$(SEED))
 NP2VENV ?= .venv-numpy2
 
-.PHONY: setup reproduce book test test-unit test-fast test-numpy2 test-notebooks benchmark clean-results
+.PHONY: setup reproduce book docs test test-unit test-fast test-numpy2 test-notebooks benchmark clean-results
 
 setup: $(VENV)/.installed
 
@@ -32,6 +34,10 @@ reproduce: setup
 
 book: setup
 	$(PY) -m hbeo book $(RUN)
+
+docs: setup
+	$(PY) -m sphinx -b html -q docs docs/_build/html
+	@echo "docs: docs/_build/html/index.html"
 
 test: setup test-unit test-notebooks test-numpy2
 

@@ -173,22 +173,23 @@ def test_the_docstring_check_sees_a_missing_module():
 
 
 def _architecture_rows() -> list[list[str]]:
-    text = (PKG.parent / "README.md").read_text()
-    section = text[text.index("## Architecture"):text.index("\n## ", text.index("## Architecture") + 1)]
+    text = (PKG.parent / "docs" / "architecture.md").read_text()
+    section = text[text.index("## Layers"):text.index("\n## ", text.index("## Layers") + 1)]
     return [[c.strip() for c in line.strip("|").split("|")] for line in section.splitlines()
             if line.startswith("| ") and not line.startswith("| layer") and not line.startswith("| ---")]
 
 
 def test_readme_architecture_table_is_the_code_s():
-    """The README's layer table names every layer in order, and every type and function it names exists."""
+    """The docs' layer table (docs/architecture.md) names every layer in order, and every type and function it
+    names exists."""
     rows = _architecture_rows()
     firsts = [r[0] for r in rows]
     named = [next((layer for layer in LAYERS if f"`hbeo/{layer}/`" in c or f"`hbeo/{layer}.py`" in c
                    or c.startswith(layer)), None) for c in firsts]
-    assert named == LAYERS, f"the README's architecture table lists {named}, the layers are {LAYERS}"
+    assert named == LAYERS, f"docs/architecture.md's layer table lists {named}, the layers are {LAYERS}"
     source = "\n".join(p.read_text() for p in PKG.rglob("*.py"))
     for row in rows:
         for name in re.findall(r"`([\w.]+)", row[2]):
             leaf = name.split(".")[-1]
             assert re.search(rf"^\s*(def|class) {leaf}\b|^{leaf}\s*=", source, re.M), \
-                f"README's architecture table names {name}, which the package does not define"
+                f"docs/architecture.md's layer table names {name}, which the package does not define"

@@ -157,8 +157,9 @@ def test_a_missing_or_broken_reading_never_fails_the_report(tmp_path):
 
 
 def test_the_main_reading_argument_is_the_readme_s():
-    """The section quotes the README's argument for the main reading, sentence by sentence; it adds none."""
-    readme = " ".join((ROOT / "README.md").read_text().split())
+    """The section quotes the documentation's argument for the main reading (docs/method.md, *Readings of the
+    view protocol*), sentence by sentence; it adds none."""
+    readme = " ".join((ROOT / "docs" / "method.md").read_text().split())
     section = readme[readme.index("**The main reading is `so3`**"):]
     sentences = [s.strip() for s in re.split(r"(?<=\.) ", readings.ARGUMENT) if s.strip()]
     assert len(sentences) == 2

@@ -1,25 +1,31 @@
-"""Every figure in the README and in paper/REPRODUCTION.md comes from a committed file.
+"""Every figure in the README, the documentation's pages and paper/REPRODUCTION.md comes from a committed file.
 
 - ``paper/REPRODUCTION.md`` is exactly what :func:`hbeo.report.reproduction_md.reproduction_text` writes from the
   committed reference run, and every file it links to is committed;
-- the README's generated blocks (summary, subspace, model and targets tables) are exactly what the run's
-  files give (the model and targets tables: ``tests/test_model_table.py``);
-- outside generated blocks and code, the README quotes no result figure by hand: every percentage, angle or
-  0.xx figure in its prose is a setting (checked against the code where the code holds it) or traced to the
-  committed file that measured it (the figure must appear there).
+- the generated blocks are exactly what the committed files give: the README's verdict and command table
+  (``benchmarks/commands.json``), the docs' subspace figures, and the docs' model and targets tables
+  (``tests/test_model_table.py``);
+- outside generated blocks and code, the README and the docs' pages quote no result figure by hand: every
+  percentage, angle or 0.xx figure in their prose is a setting (checked against the code where the code holds
+  it) or traced to the committed file that measured it (the figure must appear there);
+- the README stays a summary: at most :data:`README_WORDS` words.
 """
 import re
 from pathlib import Path
 
 import pytest
 
-from hbeo.report import reproduction_md as report
+from hbeo.report import readme, reproduction_md as report
 from hbeo.report.model_table import BEGIN, END
 from hbeo.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN = RunDir(ROOT / "results" / "cpu-modelnet10-vox30")
 README = ROOT / "README.md"
+#: The documentation's pages (``make docs``); ``docs/history.md`` and ``docs/history/`` are dated logs, not pages.
+DOCS = sorted(p for p in (ROOT / "docs").glob("*.md") if p.name != "history.md")
+#: The README's length limit, in words as ``wc -w`` counts them (whitespace-separated).
+README_WORDS = 1500
 
 
 def _settings() -> dict[str, str]:
@@ -55,28 +61,91 @@ def test_settings_quoted_in_the_readme_are_the_code_s():
     assert VARIANCE == 0.6 and VAL_FRACTION == 0.1 and LEVEL == 0.95 and VerifyConfig().min_agreement == 0.45
 
 
-def test_readme_prose_quotes_no_result_by_hand():
-    found = set(m.group(0) for m in FIGURE.finditer(_prose(README.read_text())))
+@pytest.mark.parametrize("page", [README, *DOCS], ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_prose_quotes_no_result_by_hand(page):
+    found = set(m.group(0) for m in FIGURE.finditer(_prose(page.read_text())))
     unexplained = found - set(_settings()) - set(TRACED)
-    assert not unexplained, (f"figures typed into the README outside generated blocks: {sorted(unexplained)}; "
+    assert not unexplained, (f"figures typed into {page.name} outside generated blocks: {sorted(unexplained)}; "
                              f"generate them from a committed file, or trace them in {__file__}")
     for fig, source in TRACED.items():
         assert fig in (ROOT / source).read_text(), f"{fig} is not in {source}"
 
 
+def test_readme_is_a_summary():
+    words = len(README.read_text().split())
+    assert words <= README_WORDS, f"README.md has {words} words (wc -w), more than {README_WORDS}: move detail to docs/"
+
+
 def test_the_lint_catches_a_typed_figure():
     assert FIGURE.findall(_prose("HBEO reaches 73.7 % and a 25.8° median, IoU 0.446.\n")) == ["73.7 %", "25.8°",
                                                                                             "0.446"]
-    assert FIGURE.findall(_prose(f"{report.SUMMARY_BEGIN}\n73.7 %\n{report.SUMMARY_END}\n")) == []
+    assert FIGURE.findall(_prose(f"{readme.SUMMARY_BEGIN}\n73.7 %\n{readme.SUMMARY_END}\n")) == []
 
 
-@pytest.mark.parametrize("begin,end,fn", report.README_BLOCKS)
-def test_readme_blocks_are_what_the_committed_run_gives(begin, end, fn):
-    text = README.read_text()
+#: Where each generated block lives: the README's verdict and command table, the method page's subspace figures.
+BLOCK_HOME = {readme.SUMMARY_BEGIN: README, readme.COMMANDS_BEGIN: README,
+              readme.SUBSPACE_BEGIN: ROOT / "docs" / "method.md"}
+
+
+@pytest.mark.parametrize("begin,end,fn", readme.README_BLOCKS)
+def test_generated_blocks_are_what_the_committed_files_give(begin, end, fn):
+    holders = [p for p in [README, *DOCS] if begin in p.read_text()]
+    assert holders == [BLOCK_HOME[begin]], f"{begin[:30]}...: in {holders}, expected in {BLOCK_HOME[begin]} alone"
+    text = holders[0].read_text()
     assert text.count(begin) == 1 and text.count(end) == 1
     block = text[text.index(begin) + len(begin):text.index(end)]
     assert block == "\n" + fn(RUN), "stale block: run python -m hbeo report --run RUN --readme README.md"
-    assert BEGIN in text and END in text                          # the model table (checked in test_model_table)
+    assert readme.block_files(README) == [README, *sorted((ROOT / "docs").glob("*.md"))]   # one command fills all
+
+
+def test_the_verdict_sets_the_paper_beside_the_run():
+    """The verdict's paper column is the paper's Table I row as a class mean (HBEO's total is one), the others'
+    own totals beside; its first row is HBEO's class-mean accuracy."""
+    text = readme.summary(RUN)
+    rows = [r for r in text.splitlines() if r.startswith("| ")][2:]
+    assert rows[0].startswith("| Table I, class-mean accuracy | HBEO (3-DOF) | 907 / 2721 |") and rows[0].endswith("| 81.8 % |")
+    assert rows[1].endswith("| 74.0 % (total 76.3 %) |") and "in place of 3DShapeNets" in rows[3]
+    assert "2 of 9 hold, 7 fail, 0 inconclusive" in text and "Over 3 training seeds (0, 1, 2" in text
+    assert "tag" not in text                                       # commits, not tags
+
+
+def test_the_model_table_lives_in_the_docs_not_the_readme():
+    """The long model and targets tables are generated into docs/experiments.md (checked there by
+    test_model_table); the README only links to it."""
+    from hbeo.report.model_table import TARGETS_BEGIN, TARGETS_END
+    assert BEGIN not in README.read_text() and TARGETS_BEGIN not in README.read_text()
+    page = (ROOT / "docs" / "experiments.md").read_text()
+    assert all(page.count(marker) == 1 for marker in (BEGIN, END, TARGETS_BEGIN, TARGETS_END))
+
+
+def test_the_command_table_is_the_data_file_s(tmp_path):
+    """benchmarks/commands.json: every entry complete, a measured value only with its date and source, and the
+    reference run's entry the run's own manifest figures; null renders as the entry's pending text."""
+    import json
+    entries = readme.command_entries()
+    assert [e["command"].split(" --")[0] for e in entries][:3] == [
+        "make test", "make reproduce", "make reproduce PROFILE=cpu DATASET=modelnet10-vox30"]
+    ref = next(e for e in entries if e["command"] == "make reproduce PROFILE=cpu DATASET=modelnet10-vox30")
+    man = json.loads(RUN.manifest.read_text())
+    assert ref["wall_min"] == round(man["wall_time_total_s"] / 60) and ref["cores"] == man["hardware"]["cores"]
+    assert "manifest.json" in ref["source"]
+    data = {"commands": [{"command": "x", "data": "d", "wall_min": None, "cores": 2, "peak_mem_gib": 1.25,
+                          "disk": None, "writes": "w", "measured": "2026-01-01", "source": "s"},
+                         {"command": "y", "data": "d", "wall_min": None, "cores": None, "peak_mem_gib": None,
+                          "disk": None, "writes": "w", "measured": None, "source": None, "pending": "not yet run"}]}
+    (tmp_path / "c.json").write_text(json.dumps(data))
+    rows = readme.command_table(tmp_path / "c.json").splitlines()
+    assert rows[2] == "| `x` | d | to be measured | 2 | 1.2 GiB | to be measured | w |"
+    assert rows[3] == "| `y` | d | not yet run | not yet run | not yet run | not yet run | w |"
+    data["commands"][0]["source"] = None                     # a measured value without its source is refused
+    (tmp_path / "c.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="x: a measured value needs its date"):
+        readme.command_entries(tmp_path / "c.json")
+    data["commands"][0]["source"] = "s"
+    del data["commands"][1]["writes"]
+    (tmp_path / "c.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="missing writes"):
+        readme.command_entries(tmp_path / "c.json")
 
 
 @pytest.mark.parametrize("where", ["paper", "run"])

@@ -3,10 +3,11 @@
 - :mod:`~hbeo.report.tables`: the paper's tables and claims (on one reading's evaluations), and writing tables to a run;
 - :mod:`~hbeo.report.figures`: voxel pictures, galleries, axis panels, writing figures;
 - :mod:`~hbeo.report.paper_figures`: the figures of notebooks 05-07;
-- :mod:`~hbeo.report.model_table`: the validation / test table of a run's models (README block);
+- :mod:`~hbeo.report.model_table`: the validation / test table of a run's models (a block of docs/experiments.md);
 - :mod:`~hbeo.report.experiments`: the model table's rows as specs (``experiments/``): list, run, regenerate;
 - :mod:`~hbeo.report.provenance`: the run's ``manifest.json``;
-- :mod:`~hbeo.report.reproduction_md`: ``REPRODUCTION.md`` (reported vs. reproduced) and the README summary;
+- :mod:`~hbeo.report.reproduction_md`: ``REPRODUCTION.md`` (reported vs. reproduced);
+- :mod:`~hbeo.report.readme`: the README's verdict and command table, and the documentation's generated blocks;
 - :mod:`~hbeo.report.readings`: ``REPRODUCTION.md``'s section on the paper's claims under each reading of the
   view protocol;
 - :mod:`~hbeo.report.seeds`: the spread over training seeds of runs that differ only in that seed;

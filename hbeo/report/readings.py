@@ -5,9 +5,10 @@ one reading of those words. A run's evaluations under its model's own sampler (t
 ``eval_<method>_<pose>.json``, under another reading ``eval_<method>_<pose>_<sampler>.json``
 (:meth:`hbeo.rundir.RunDir.evaluation`; written by :func:`hbeo.evaluation.protocol.readings`,
 ``scripts/readings.sh``). :func:`run_readings` reads what the run folder holds, reading by reading, and
-:func:`section` writes the section: the main reading and the README's argument for it, each reading's
-files, and, once another reading than the main one has files, one table of the claims
-(:func:`hbeo.report.tables.claims` of each reading's evaluations, a column per reading with files) and a
+:func:`section` writes the section: the main reading and the documentation's argument for it
+(``docs/method.md``), each reading's files, and, once another reading than the main one has files, one table
+of the claims (:func:`hbeo.report.tables.claims` of each reading's evaluations, a column per reading with
+files) and a
 Table I block per reading (class-mean accuracy and accuracy with intervals,
 :func:`hbeo.evaluation.paired.estimates` as notebook 05 shows them). What a reading lacks is marked *not
 evaluated* with the command that evaluates it; a reading without files is listed, never an error. With the
@@ -40,8 +41,9 @@ from hbeo.rundir import RunDir
 TITLE = "The paper's claims under each reading of the view protocol"
 #: ``scripts/readings.sh``'s interpreter default, and the variable that restricts its settings.
 SCRIPT, PY, METHODS = "scripts/readings.sh", ".venv/bin/python", "METHODS"
-#: The project's main reading and the README's argument for it ("Readings of the view protocol"), quoted:
-#: ``tests/test_readings_report.py`` checks every sentence is the README's.
+#: The project's main reading and the documentation's argument for it (docs/method.md, "Readings of the view
+#: protocol"), quoted:
+#: ``tests/test_readings_report.py`` checks every sentence is the page's.
 MAIN = "so3"
 ARGUMENT = ("The paper estimates a full 3-DOF pose (its 3-element axis-angle output), calls the objects' orientation "
             "unknown, and states no restriction on the viewpoints; uniform over SO(3) is the distribution that assumes "
@@ -200,10 +202,10 @@ def section(run, man: dict) -> list[str]:
     elif main == MAIN:
         says = (f"**The main reading is `{MAIN}`**, the model's training sampler: every section above is under it. "
                 f"It was fixed before any result under another reading was seen, and is never chosen by which "
-                f"reading matches the paper's figures (README, *Readings of the view protocol*). {ARGUMENT}")
+                f"reading matches the paper's figures (docs/method.md, *Readings of the view protocol*). {ARGUMENT}")
     else:
         says = (f"**This run's main reading is `{main}`**, its model's training sampler: every section above is "
-                f"under it. The project's main reading is `{MAIN}` (README, *Readings of the view protocol*): "
+                f"under it. The project's main reading is `{MAIN}` (docs/method.md, *Readings of the view protocol*): "
                 f"{ARGUMENT}")
     lines = [f"## {TITLE}", "",
              "The paper's views are \"multiple random viewpoints\"; each sampler of `hbeo.render.poses.SAMPLERS` "
