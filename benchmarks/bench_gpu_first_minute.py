@@ -24,9 +24,20 @@ time limit still returns what it measured. A stage that fails records its error 
   and batch (``--net-batches``), channels-last, on random depth; code of ``bench_gpu_step.py``.
 - ``both``: the fused marcher's batch then the ``amp-float16`` step on it, per network batch.
 
-``--cpu-check``: the same stages on this CPU in seconds (the ``ci`` profile's 80x60 images and network, one
-grid a class, small batches, the fused kernel under Triton's interpreter, ``TRITON_INTERPRET=1`` set here
-before triton is imported); the JSON has the same keys. ``tests/test_fused_bench.py`` runs it.
+On the lent GPU machine (Python 3.12, torch 2.11 + CUDA with its triton 3.6, no trimesh; hbeo not installed),
+with ``.device/`` made here by ``bash maintainer/device_prepare.sh`` (the grid file and the missing wheels) carried
+beside the tree (sized for about two minutes; not yet run on a GPU)::
+
+    python3 -m pip install -q --no-index --no-deps --target /tmp/site .device/whl/*.whl
+    PYTHONPATH=/tmp/site HBEO_VOX30=.device/modelnet10_vox30.npz timeout 420 \
+        python3 benchmarks/bench_gpu_first_minute.py --out "$OUT/first_minute.json"
+
+``HBEO_GRIDCAST=torch`` keeps training on the torch march should the fused one disagree there.
+
+``--cpu-check``: the same stages on a CPU, about 20 s on a loaded 2-core VM (the ``ci`` profile's 80x60
+images and network, one grid a class, batch 4, the fused kernel under Triton's interpreter,
+``TRITON_INTERPRET=1`` set here before triton is imported); the JSON has the same keys.
+``tests/test_fused_bench.py`` runs it.
 """
 from __future__ import annotations
 
@@ -110,7 +121,8 @@ def main(argv=None) -> None:
     args = parse(argv)
     if args.cpu_check:                               # before anything imports triton
         os.environ["TRITON_INTERPRET"] = "1"
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    here = Path(__file__).resolve().parent
+    sys.path[:0] = [str(here), str(here.parent)]          # bench_gpu_step, bench_gridcast; hbeo where not installed
     import numpy as np
     import torch
     from bench_gpu_step import timed
