@@ -37,7 +37,8 @@ def test_the_first_minute_benchmark_runs_on_a_cpu(tmp_path):
 
 
 def test_a_failing_stage_is_recorded_and_the_json_is_written_after_each(tmp_path):
-    spec = importlib.util.spec_from_file_location("bench_first_minute", ROOT / "benchmarks" / "bench_gpu_first_minute.py")
+    path = ROOT / "benchmarks" / "bench_gpu_first_minute.py"
+    spec = importlib.util.spec_from_file_location("bench_first_minute", path)
     b = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(b)
     rep = b.Report(tmp_path / "r.json")
