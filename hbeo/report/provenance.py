@@ -56,7 +56,7 @@ def versions() -> dict:
 def hardware() -> dict:
     """CPU model, cores, memory (GiB) and GPU of this machine, torch's thread count and the CPU kernels torch
     dispatches to (``cpu_capability``, e.g. ``AVX2`` or ``AVX512``: two machines that differ there train the same
-    seed to slightly different weights, while inference reproduces; README "Determinism")."""
+    seed to slightly different weights, while inference reproduces; docs/reproduce.md, "Determinism")."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
