@@ -197,7 +197,7 @@ def test_each_target_met_or_missed_with_its_gap(tmp_path):
 
 
 def test_targets_columns_keep_their_order_whatever_the_rows_order(tmp_path):
-    """A new reference's rows are added after the BEO row (scripts/reference_rows.py): the columns stay
+    """A new reference's rows are added after the BEO row (their specs come after the BEO row's): the columns stay
     one pass, extended, then the unjudged reference, and each keeps its own cells."""
     rows = _run(tmp_path)
     before = targets_table(tmp_path)
