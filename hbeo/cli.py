@@ -90,7 +90,7 @@ def _join_list_values(argv: list[str]) -> list[str]:
 def _bug(err: BaseException) -> int:
     traceback.print_exc()
     print(f"error: unexpected {type(err).__name__}: this is a bug in hbeo; please report it with the command and "
-          "the traceback above on the project's issue tracker (README, 'Bad input')", file=sys.stderr)
+          "the traceback above on the project's issue tracker (docs/your-depth-image.md, 'Bad input')", file=sys.stderr)
     return 1
 
 
@@ -159,7 +159,7 @@ def cmd_train(args) -> int:
 def _add_verify(p) -> None:
     p.add_argument("--verify", action="store_true",
                    help="check the network's top hypotheses (classes x rotation modes) against the depth and "
-                        "complete the shape from it (hbeo.model.verify; settings chosen on validation, README)")
+                        "complete the shape from it (hbeo.model.verify; settings chosen on validation, docs/experiments.md)")
     p.add_argument("--verify-set", metavar="KEY=VALUE,...",
                    help="verify settings over the defaults, e.g. classes=1,noise_var=1 (hbeo.model.verify.VerifyConfig)")
 
@@ -453,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model-table", action="store_true",
                    help="instead: the model table (validation / test) from the run's models.json -> model_table.md")
     p.add_argument("--readme", help="also replace the generated block (summary, or with --model-table the tables) in "
-                                    "this README")
+                                    "this Markdown file (README.md, or docs/experiments.md for the model table)")
     p = _command(sub, cmd_book, "book", help="render a run folder's executed notebooks, tables and figures to a static "
                                     "HTML site that opens offline")
     p.add_argument("run", help="run folder (results/<profile>-<dataset>)")

@@ -1,7 +1,7 @@
 """The project's conventions, in one place.
 
 Everything that fixes a frame, a grid layout or a name lives here and is imported
-from here; the README's "Conventions" section documents the same facts.
+from here; ``docs/method.md`` ("Conventions") documents the same facts.
 
 Canonical object frame
     ModelNet's own per-class alignment: right-handed, +z up. ModelNet aligns objects

@@ -13,7 +13,7 @@ refusal is a :class:`ResourceError` (a :class:`~hbeo.errors.HBEOError` and a Val
 prints it as one line, exit 2) that names the option, the estimate and the largest value that would fit.
 
 The byte figures are estimates of the peak, measured by ``benchmarks/bench_memory.py``
-(``benchmarks/README.md``); the commands' bounds are stated in README.md ("Memory").
+(``benchmarks/README.md``); the commands' bounds are stated in ``docs/your-depth-image.md`` ("Bad input").
 Imports only the foundation (:mod:`hbeo.errors`), and threadpoolctl when :func:`one_blas_thread` is first called.
 """
 from __future__ import annotations

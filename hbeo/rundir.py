@@ -16,7 +16,7 @@ other module and every notebook asks a :class:`RunDir` for a path::
     eval_<method>_<pose>_<sampler>.json  evaluation: the same under another reading of the view protocol
     eval_<name>.json             evaluation: other evaluations, named by whoever ran them
     validation.csv, verify_sweep.csv  evaluation: validation runs and verify settings tried
-    models.json, model_table.md  report: the README's model table, its rows and the table
+    models.json, model_table.md  report: the model table (docs/experiments.md), its rows and the table
     NN_<name>.png / .csv / .md   report: the notebooks' figures and tables (names: hbeo.report.tables)
     NN_<name>.ipynb              report: the executed notebooks
     manifest.json                report: provenance (commit, versions, hardware, wall times)
@@ -181,7 +181,7 @@ class RunDir:
 
     @property
     def model_rows(self) -> Path:
-        """``models.json``: the rows of the README's model table (label, validation and test
+        """``models.json``: the rows of the model table (``docs/experiments.md``) (label, validation and test
         metrics files of this folder, chosen on validation or not; :mod:`hbeo.report.model_table`)."""
         return self.path / "models.json"
 

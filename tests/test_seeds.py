@@ -194,24 +194,25 @@ def test_reproduction_shows_the_seed_tables_only_while_they_describe_the_run(tmp
     assert S.stale(runs[0], 0) == "eval_hbeo_3dof.json is missing or unreadable"
 
 
-def test_the_readme_summary_gives_the_spread_only_while_the_tables_describe_the_run(tmp_path):
+def test_the_spread_is_given_only_while_the_tables_describe_the_run(tmp_path):
     runs = _claims_runs(tmp_path)
     man = {"profile": "ci", "dataset": "procedural", "seeds": {"training": 0}}
-    assert S.summary(runs[0], man) == []                               # no seed tables yet
+    assert S.spread(runs[0], man) == ([], [])                          # no seed tables yet
     S.write_seed_table(runs, n_boot=20)
-    text = "\n".join(S.summary(runs[0], man))
+    names, rows = S.spread(runs[0], man)
+    assert names == ["0", "1", "2"]
+    r = next(r for r in rows if r["label"] == "HBEO (3-DOF)")
     # HBEO's class means: seed 0 every answer right (100 %), seed 1 none (0 %), seed 2 a1 of class a (1/3, 0)
-    cm = [100.0, 0.0, 50 / 3]
+    cm = [1.0, 0.0, 1 / 6]
     mean, sd = sum(cm) / 3, math.sqrt(sum((x - sum(cm) / 3) ** 2 for x in cm) / 2)
-    assert f"- HBEO (3-DOF): {mean:.1f} ± {sd:.1f} % (0.0 – 100.0)" in text
+    assert (r["mean"], r["sd"], r["min"], r["max"]) == (pytest.approx(mean), pytest.approx(sd), 0.0, 1.0)
     # the first claim differs between seeds; the pose claim against ICP and the completion claim hold on every seed
-    assert ("- HBEO (3-DOF), the paper's claims: 2 hold and 0 fail on every seed, "
-            "1 with verdicts that differ between seeds, of 3.") in text
+    assert (r["hold"], r["fail"], r["differ"], r["claims"]) == (2, 0, 1, 3)
     path = RunDir(runs[0]).evaluation("hbeo", "3dof")                  # evaluated again since: not shown
     m = json.loads(path.read_text())
     m["per_query"]["pred"][0] = "b"
     path.write_text(json.dumps(m))
-    assert S.summary(runs[0], man) == []
+    assert S.spread(runs[0], man) == ([], [])
 
 
 # --------------------------------------------------------------------------- the seed of a run's trainings

@@ -1,6 +1,6 @@
 """Where large pose errors point: is a wrong pose a front/back flip about the object's up axis?
 
-HBEO's pose errors are bimodal (README, "What is met and what is missed"): most answers are within
+HBEO's pose errors are bimodal (``docs/experiments.md``, "Targets: met and missed"): most answers are within
 30 degrees or near 180. A 180-degree error can be a turn about the object's up axis (front and back
 swapped: what a symmetric-looking silhouette invites) or about a horizontal axis (top and bottom
 swapped). This module measures which, per class.

@@ -60,7 +60,7 @@ from hbeo.subspace.projection import MaskedProjector
 @dataclass(frozen=True)
 class VerifyConfig:
     """Settings of the verify step. The defaults were chosen on validation views of the `cpu`
-    ModelNet10 reference model (``scripts/tune_verify.py``, ``verify_sweep.csv``; README): the class
+    ModelNet10 reference model (``scripts/tune_verify.py``, ``verify_sweep.csv``; ``docs/experiments.md``): the class
     stays the network's (letting the shape fit pick the class lost 10-14 points of accuracy), the
     two most probable rotation modes are verified."""
 

@@ -15,7 +15,7 @@ Readings of the view protocol (:data:`SAMPLERS`)
 
     ``so3``
         R uniform (Haar) on SO(3) (normalized Gaussian quaternions): the object in any orientation,
-        views from under the floor included. The project's main reading (README, "Readings of the
+        views from under the floor included. The project's main reading (``docs/method.md``, "Readings of the
         view protocol").
     ``upright``
         yaw uniform in [0, 2 pi), elevation uniform in ``elevation_deg`` (default 10..50 degrees),

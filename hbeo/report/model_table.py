@@ -1,4 +1,4 @@
-"""The README's model table: validation and test figures side by side, generated from committed files.
+"""The model table (``docs/experiments.md``): validation and test figures side by side, generated from committed files.
 
 A run folder's ``models.json`` (:attr:`hbeo.rundir.RunDir.model_rows`) lists the table's rows::
 

@@ -70,24 +70,16 @@ def _paper_class_mean(rep, setting: str, method: str) -> str:
 
 
 def _spread_line(run, man: dict) -> list[str]:
-    """The one line on the spread over training seeds of HBEO (3-DOF)'s class mean and the claims' verdicts, from
-    ``seeds_table.csv`` and ``seeds_claims.csv`` when they describe this run (:func:`hbeo.report.seeds.stale`)."""
-    import pandas as pd
-    seed = (man.get("seeds") or {}).get("training", 0)
-    if not run.table(T.SEEDS).is_file() or not run.table(T.SEEDS_CLAIMS).is_file() or seeds.stale(run, seed):
+    """The one line on the spread over training seeds of HBEO (3-DOF)'s class mean and the claims' verdicts
+    (:func:`hbeo.report.seeds.spread`; nothing while the seed tables do not describe this run)."""
+    names, rows = seeds.spread(run, man)
+    r = next((r for r in rows if (r["method"], r["pose"]) == ("hbeo", "3dof")), None)
+    if r is None:
         return []
-    t = pd.read_csv(run.table(T.SEEDS))
-    names = [c[len("seed "):] for c in t.columns if c.startswith("seed ") and not c.endswith(("low", "high"))]
-    n = len(names)
-    r = t[(t["method"] == "hbeo") & (t["pose"] == "3dof") & (t["statistic"] == "class_mean")].iloc[0]
-    cl = pd.read_csv(run.table(T.SEEDS_CLAIMS))
-    g = cl[cl["HBEO played by"] == r["label"]]
-    every = {v: int((g["verdicts"] == f"{v} {n} of {n}").sum()) for v in ("holds", "fails")}
-    differ = len(g) - every["holds"] - every["fails"]
-    return ["", f"Over {n} training seeds ({', '.join(names)}; the run made again with each, `{T.SEEDS}.md`): "
+    return ["", f"Over {len(names)} training seeds ({', '.join(names)}; the run made again with each, `{T.SEEDS}.md`): "
                 f"{r['label']} class-mean accuracy {100 * r['mean']:.1f} ± {100 * r['sd']:.1f} % (sample sd; "
-                f"{100 * r['min']:.1f} – {100 * r['max']:.1f}); of its {len(g)} claims, {every['holds']} hold and "
-                f"{every['fails']} fail on every seed, {differ} differ between seeds."]
+                f"{100 * r['min']:.1f} – {100 * r['max']:.1f}); of its {r['claims']} claims, {r['hold']} hold and "
+                f"{r['fail']} fail on every seed, {r['differ']} differ between seeds."]
 
 
 def summary(run) -> str:

@@ -293,30 +293,29 @@ def stale(run, seed: int) -> str | None:
     return None
 
 
-def summary(run, man: dict) -> list[str]:
-    """The README summary's lines on the spread over training seeds (:func:`hbeo.report.reproduction_md.summary`):
-    each HBEO row's class-mean accuracy as mean ± sd (range) over the seeds and how many of the paper's claims got
-    the same verdict on every seed, from ``seeds_table.csv`` and ``seeds_claims.csv`` when they describe this run (:func:`stale`), else
-    nothing (REPRODUCTION.md's section says why)."""
+def spread(run, man: dict) -> tuple[list[str], list[dict]]:
+    """The spread over training seeds of run folder ``run`` (``man``: its manifest), from ``seeds_table.csv`` and
+    ``seeds_claims.csv`` when they describe this run (:func:`stale`), else ``([], [])``: the seeds' names and,
+    for each HBEO row (HBEO and its extensions), its ``label``, ``method``, ``pose``, the class-mean accuracy's
+    ``mean``, sample ``sd``, ``min`` and ``max`` over the seeds (fractions) and, of the paper's claims judged with
+    it, how many ``hold`` and ``fail`` on every seed, how many ``differ`` between seeds, of ``claims``."""
     run = RunDir.of(run)
     seed = (man.get("seeds") or {}).get("training", 0)
     if not run.table(tables.SEEDS).is_file() or not run.table(tables.SEEDS_CLAIMS).is_file() or stale(run, seed):
-        return []
+        return [], []
     t = pd.read_csv(run.table(tables.SEEDS))
     cm = t[t["method"].str.startswith("hbeo") & (t["statistic"] == "class_mean")]     # HBEO and its extensions
     cl = pd.read_csv(run.table(tables.SEEDS_CLAIMS))
-    seeds = [c[len("seed "):] for c in t.columns if c.startswith("seed ") and not c.endswith(("low", "high"))]
-    n = len(seeds)
-    lines = ["", f"Over training seeds {', '.join(seeds)} (the run made again with each; `{tables.SEEDS}.md`, `{tables.SEEDS_CLAIMS}.md`, "
-             "REPRODUCTION.md's *The spread over training seeds*): class-mean accuracy, mean ± sample sd (min – max) "
-             f"over the {n} runs:", ""]
-    lines += [f"- {r['label']}: {100 * r['mean']:.1f} ± {100 * r['sd']:.1f} % ({100 * r['min']:.1f} – {100 * r['max']:.1f})"
-              for _, r in cm.iterrows()]
-    for who, g in cl.groupby("HBEO played by", sort=False):
+    names = [c[len("seed "):] for c in t.columns if c.startswith("seed ") and not c.endswith(("low", "high"))]
+    n = len(names)
+    rows = []
+    for _, r in cm.iterrows():
+        g = cl[cl["HBEO played by"] == r["label"]]
         every = {v: int((g["verdicts"] == f"{v} {n} of {n}").sum()) for v in ("holds", "fails")}
-        lines.append(f"- {who}, the paper's claims: {every['holds']} hold and {every['fails']} fail on every seed, "
-                     f"{len(g) - every['holds'] - every['fails']} with verdicts that differ between seeds, of {len(g)}.")
-    return lines
+        rows.append({"label": r["label"], "method": r["method"], "pose": r["pose"], "mean": float(r["mean"]),
+                     "sd": float(r["sd"]), "min": float(r["min"]), "max": float(r["max"]), "hold": every["holds"],
+                     "fail": every["fails"], "differ": len(g) - every["holds"] - every["fails"], "claims": len(g)})
+    return names, rows
 
 
 def section(run, man: dict) -> list[str]:
