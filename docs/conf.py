@@ -36,7 +36,7 @@ nb_execution_mode = "off"             # committed notebooks carry no outputs; th
 nb_ipywidgets_js = {}                 # no widget manager from a CDN
 nb_merge_streams = True
 
-exclude_patterns = ["_build", "history", "history.md", "README.md", "Thumbs.db", ".DS_Store"]
+exclude_patterns = ["_build", "history", "README.md", "Thumbs.db", ".DS_Store"]
 suppress_warnings = ["myst.header"]
 
 autodoc_default_options = {"members": True, "show-inheritance": True}

@@ -188,7 +188,7 @@ class RunDir:
     @property
     def history(self) -> Path:
         """``docs/history/<run folder name>/``: metrics files of models this run no longer holds (earlier
-        configurations, ablations), kept for the model table and ``docs/history.md``; outside the run folder."""
+        configurations, ablations), kept for the model table and ``docs/history/test-split-comparisons.md``; outside the run folder."""
         return config.REPO_ROOT / "docs" / "history" / self.path.name
 
     @property

@@ -17,8 +17,8 @@ from hbeo.report import book
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 CHROMIUM = next((p for p in (shutil.which("chromium"), "/usr/bin/chromium") if p and Path(p).is_file()), None)
-#: The README and the site's own pages (``docs/history.md`` and ``docs/history/`` are dated logs, not pages).
-PAGES = [ROOT / "README.md", *sorted(p for p in DOCS.glob("*.md") if p.name != "history.md")]
+#: The README and the site's own pages (``docs/history/`` holds dated logs, not pages).
+PAGES = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
 #: Pages the site must have (``make docs`` -> ``docs/_build/html``), by their file in the built site.
 EXPECTED = ["index.html", "install.html", "reproduce.html", "method.html", "your-depth-image.html", "scale.html",
             "architecture.html", "experiments.html", "notebooks.html", "_api/index.html", "_api/model.html",
