@@ -5,8 +5,8 @@ Two committed run folders each hold the model their `make reproduce` trained:
 - ``results/cpu-modelnet10-vox30/`` (`make reproduce PROFILE=cpu DATASET=modelnet10-vox30`: rotation bins,
   roll augmentation, voxel loss, class-balanced sampling, shared layers (1024, 512, 512), 60 epochs), scored on
   every usable ModelNet10 test object (907) x 3 views;
-- ``results/cpu-procedural/`` (plain `make reproduce`: the default, procedural data and the ``cpu`` profile),
-  scored on the procedural test split x 3 views.
+- ``results/quick-procedural/`` (plain `make reproduce`: the default, procedural data and the ``quick``
+  profile), scored on its procedural test objects (50 per class) x 3 views.
 
 Each ``model.hbeo`` evaluated on the paired test views of its run (seed 0) must reproduce the run's
 ``eval_hbeo_3dof.json`` query by query: the same object and view, predicted class, pose error and
@@ -32,8 +32,8 @@ from hbeo.storage import sha256_file
 pytestmark = pytest.mark.slow
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
-#: run folder -> (dataset, number of test objects its evaluation covers)
-RUNS = {"cpu-modelnet10-vox30": ("modelnet10-vox30", 907), "cpu-procedural": ("procedural", None)}
+#: run folder -> (profile, dataset, number of test objects its evaluation covers)
+RUNS = {"cpu-modelnet10-vox30": ("cpu", "modelnet10-vox30", 907), "quick-procedural": ("quick", "procedural", None)}
 #: test objects of each class scored again (None: the whole split)
 PER_CLASS = None if os.environ.get("HBEO_REFERENCE_FULL") == "1" else 20
 
@@ -41,32 +41,33 @@ PER_CLASS = None if os.environ.get("HBEO_REFERENCE_FULL") == "1" else 20
 @pytest.fixture(params=sorted(RUNS), scope="module")
 def reference(request):
     run = RunDir(RESULTS / request.param)
-    dataset, n_objects = RUNS[request.param]
+    profile, dataset, n_objects = RUNS[request.param]
     committed = json.loads(run.evaluation("hbeo", "3dof").read_text())
-    return run, dataset, n_objects, committed
+    return run, profile, dataset, n_objects, committed
 
 
-def _dataset(name, monkeypatch, request):
+def _dataset(name, profile, monkeypatch, request):
     from hbeo.data.datasets import get_dataset
     if name == "procedural":
-        return get_dataset("procedural", profile=config.get_profile("cpu"))
+        return get_dataset("procedural", profile=config.get_profile(profile))
     monkeypatch.setenv("HBEO_VOX30", str(request.getfixturevalue("vox30_file")))
     with pytest.warns(UserWarning, match="empty grids"):
-        return get_dataset(name, profile=config.get_profile("cpu"))
+        return get_dataset(name, profile=config.get_profile(profile))
 
 
 def test_the_committed_model_reproduces_its_committed_evaluation(reference, monkeypatch, request):
     from hbeo.model.inference import HBEO
     from hbeo.evaluation.evaluate import class_mean_accuracy, evaluate_model
 
-    run, dataset, n_objects, committed = reference
-    ds = _dataset(dataset, monkeypatch, request)
+    run, profile, dataset, n_objects, committed = reference
+    ds = _dataset(dataset, profile, monkeypatch, request)
     model = HBEO.load(run.model)
     req = committed["request"]
-    assert (req["per_class"], req["views"], req["seed"]) == (None, 3, 0)     # the whole split, as the README says
+    # the profile's test objects (cpu: the whole split), three views each, as the README says
+    assert (req["per_class"], req["views"], req["seed"]) == (config.get_profile(profile).data.n_test_per_class, 3, 0)
     assert sha256_file(run.model)[:16] == req["model_sha256"]                 # of this very model file
     manifest = json.loads(run.manifest.read_text())
-    assert (manifest["profile"], manifest["dataset"]) == ("cpu", dataset)
+    assert (manifest["profile"], manifest["dataset"]) == (profile, dataset)
     assert manifest["git_dirty"] is False and manifest.get("git_tag"), "made from a clean tagged clone"
     # the committed file: every object of the split, three views each, its summary that of its queries
     q = committed["per_query"]
