@@ -12,7 +12,6 @@ answer averaged with the mirrored image's, :meth:`hbeo.model.inference.HBEO.set_
 ``prior_tau`` (HBEO's prior correction, :meth:`hbeo.model.inference.HBEO.set_prior_tau`: 0 = none, the
 paper's; null for the baselines), ``class_prior`` (``{tau, source, counts}`` of a correction, else null) and
 ``ensemble`` (the files, ``{file, sha256}``, of the models whose answers HBEO's were averaged with, else null),
-``completion_rule`` (only when HBEO completed by another rule than the paper's, :mod:`hbeo.model.completion_rule`),
 ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``, ``verify`` (HBEO's
 verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
@@ -137,8 +136,7 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
     out["verify"] = extra["verify"]
     return {"method": method.name, "pose": pose, "given_class": (method.name, pose) in GIVEN_CLASS,
             "precision": extra["precision"], "rolls": extra["rolls"], "mirror": extra["mirror"], "prior_tau": extra["prior_tau"],
-            "class_prior": extra["class_prior"], "ensemble": extra["ensemble"],
-            **({"completion_rule": extra["completion"]} if extra.get("completion") else {}), **out}
+            "class_prior": extra["class_prior"], "ensemble": extra["ensemble"], **out}
 
 
 def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1, seed: int = 0,

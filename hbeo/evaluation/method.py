@@ -19,7 +19,7 @@ the conformance suite every registered method passes):
 ``describe() -> dict``
     what the metrics dict records of the method's own settings beyond name and pose (HBEO:
     ``precision``, ``rolls``, ``mirror``, ``verify``, ``prior_tau``, ``class_prior`` and ``ensemble``: the files of the
-    models averaged with it, or None; ``completion`` only when not the paper's rule; a baseline: ``{}``).
+    models averaged with it, or None; a baseline: ``{}``).
 
 Preparation is not the loop's: a method arrives ready to answer (a baseline fitted or loaded by
 :func:`hbeo.baselines.methods.load_method`, HBEO loaded and wrapped in :class:`HBEOMethod`).
@@ -119,7 +119,7 @@ class HBEOMethod:
         return {"precision": getattr(self.model, "precision", "float32"), "rolls": self.rolls,
                 "mirror": bool(getattr(self.model, "mirror", False)),
                 "verify": verify.to_dict() if verify is not None else None, "prior_tau": tau, "class_prior": prior,
-                "ensemble": list(members) if members else None, **_completion(self.model)}
+                "ensemble": list(members) if members else None}
 
     def _prediction(self, depth, intrinsics):
         if self._shared is None:
@@ -149,13 +149,6 @@ class HBEOMethod:
         x = self._verified(depth, intrinsics, p)
         return {"label": int(x["label"]), "probabilities": x["probabilities"], "rotation": x["rotation"],
                 "grid": x["grid"], "ms": p.timing_ms["total"] + x["ms"], "agreement": x["agreement"]}
-
-
-def _completion(model) -> dict:
-    """``{"completion": rule dict}`` when the model completes by another rule than the paper's
-    (:meth:`hbeo.model.inference.HBEO.set_completion`), else ``{}`` (the paper's leaves no key)."""
-    rule = getattr(model, "completion", None)
-    return {} if rule is None or rule.name == "paper" else {"completion": rule.to_dict()}
 
 
 def _with_agreement(cfg, x: float):

@@ -133,16 +133,6 @@ class HBEO:
         self.set_precision(precision)
         self.set_prior_tau(prior_tau)
         self.set_mirror(False)
-        self.set_completion("paper")
-
-    def set_completion(self, rule="paper", threshold: float | None = None) -> "HBEO":
-        """How :meth:`predict` completes the back-projection (:mod:`hbeo.model.completion_rule`): ``"paper"``
-        (>= 0.5, the default) or ``"nonempty"`` (the threshold chosen on validation, and never an empty grid),
-        or a :class:`~hbeo.model.completion_rule.CompletionRule`; ``threshold`` overrides the rule's. Returns self."""
-        from hbeo.model.completion_rule import class_occupancy, rule as completion_rule
-        self.completion = completion_rule(rule, threshold)
-        self._occupancy = class_occupancy(self.subspace, self.classes) if self.completion.fallback else None
-        return self
 
     def set_mirror(self, mirror: bool) -> "HBEO":
         """Test-time mirror averaging of the class answer; returns self. With ``mirror``, :meth:`predict`
@@ -423,11 +413,7 @@ class HBEO:
                 c = c * np.asarray(ms.coeff_std) + np.asarray(ms.coeff_mean)
             coeffs = coeffs + c
         coeffs = coeffs / len(nets)
-        if self.completion.fallback:               # a never-empty rule (not the paper's)
-            grids = self.completion.complete(self.subspace.reconstruct(coeffs.astype(np.float32)),
-                                             self._occupancy[probs.argmax(1)])
-        else:
-            grids = self.subspace.reconstruct(coeffs.astype(np.float32), threshold=self.completion.threshold)
+        grids = self.subspace.reconstruct(coeffs.astype(np.float32), threshold=0.5)
         t3 = time.perf_counter()
         scale = np.array([v.distance / s.ref_distance if s.ref_distance else 1.0 for v in views])
         trans = np.stack([v.center / np.linalg.norm(v.center) * v.distance for v in views])
@@ -486,7 +472,7 @@ class HBEO:
         (metres): grid surface, scaled, rotated by the predicted pose, moved to the estimated centre."""
         from hbeo.render.renderer import grid_mesh
         if not pred.grids[i].any():
-            raise ValueError(f"the completed grid is empty (no back-projected voxel reaches {self.completion.threshold:g})")
+            raise ValueError("the completed grid is empty (no coefficient combination above 0.5)")
         mesh = grid_mesh(pred.grids[i], object_size=self.settings.object_size * float(pred.scale[i]))
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = pred.rotation[i], pred.translation[i]
