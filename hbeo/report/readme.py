@@ -188,7 +188,7 @@ def command_table(path=COMMANDS) -> str:
             "| --- | --- | ---: | ---: | ---: | ---: | --- |"]
     for e in command_entries(path):
         pending = e.get("pending", "to be measured")
-        show = {"wall_min": lambda v: f"{v:.0f} min", "cores": lambda v: f"{v:d}",
+        show = {"wall_min": lambda v: f"{60 * v:.0f} s" if v < 1 else f"{v:.0f} min", "cores": lambda v: f"{v:d}",
                 "peak_mem_gib": lambda v: f"{v:.1f} GiB", "disk": str}
         cells = [pending if e[k] is None else show[k](e[k]) for k in MEASURED]
         rows.append(f"| `{e['command']}` | {e['data']} | " + " | ".join(cells) + f" | {e['writes']} |")
