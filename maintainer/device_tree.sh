@@ -5,7 +5,7 @@
 # and the device job needs none of them.
 #     bash maintainer/device_tree.sh slim       before the device call: untrack them in the index, move them into
 #                                            .device-aside/ (ignored in .git/info/exclude; a file that .gitignore
-#                                            un-ignores, as results/cpu-procedural/model.hbeo, would travel if only
+#                                            un-ignores, as results/quick-procedural/model.hbeo, would travel if only
 #                                            excluded there), nothing is committed
 #     bash maintainer/device_tree.sh restore    after it: move them back, track them again, drop the exclude lines
 # `slim` refuses a tree with staged changes (restore would mix them up); commit first.

@@ -3,7 +3,7 @@
 Usage: python scripts/compare_runs.py RUN_A RUN_B
 Prints each difference (file, row, column) and exits 1 when there is any, 0 when the runs agree; 2 when a
 folder is missing. E.g. after `make reproduce` in a fresh clone, against the committed run:
-    python scripts/compare_runs.py ../fresh/results/cpu-procedural results/cpu-procedural
+    python scripts/compare_runs.py ../fresh/results/quick-procedural results/quick-procedural
 """
 import sys
 from pathlib import Path

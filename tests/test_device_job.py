@@ -137,7 +137,7 @@ def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_a
     repo = tmp_path / "repo"
     (repo / "maintainer").mkdir(parents=True)
     shutil.copy(ROOT / "maintainer" / "device_tree.sh", repo / "maintainer")
-    # results/b/model.hbeo un-ignored by .gitignore, as results/cpu-procedural/model.hbeo: an exclude line alone
+    # results/b/model.hbeo un-ignored by .gitignore, as results/quick-procedural/model.hbeo: an exclude line alone
     # would not keep it from travelling
     for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "results/a/01_x.ipynb",
               "notebooks/01_x.ipynb", "hbeo/x.py", ".gitignore"):
