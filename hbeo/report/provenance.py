@@ -127,3 +127,14 @@ def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, 
     m["wall_time_total_s"] = round(sum(n["wall_s"] for n in nbs.values()), 1)
     atomic_text(run.manifest, json_text(m, indent=1))
     return m
+
+
+def commit_line(man: dict) -> str:
+    """Where a run came from, by commit (never by tag: a clone has none), from its manifest ``man``:
+    ``commit `78a8306b86`, clean tree``, or each commit when its notebooks ran at different ones."""
+    nbs = man.get("notebooks", {})
+    commits = sorted({n.get("commit") or "?" for n in nbs.values()})
+    clean = not any(n.get("dirty") for n in nbs.values())
+    where = (f"commit `{commits[0][:10]}`" if len(commits) == 1
+             else "commits " + ", ".join(f"`{c[:10]}`" for c in commits) + " (notebooks at different commits)")
+    return f"{where}, {'clean tree' if clean else 'uncommitted changes outside results/'}"

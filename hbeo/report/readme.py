@@ -21,6 +21,7 @@ from pathlib import Path
 
 from hbeo import config
 from hbeo.report import seeds, tables as T
+from hbeo.report.provenance import commit_line
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -42,16 +43,6 @@ VERDICT_HBEO = ((T.POSE_CI, "within_30", "pose within 30°"), (T.POSE_CI, "pose_
                 (T.COMPLETION_CI, "edt_median", "completion, median EDT e′ (lower is better)"))
 #: The paper's column for measures it plots but does not tabulate.
 PLOTS_ONLY = "–"
-
-
-def _commit_line(man: dict) -> str:
-    """Where the run came from, by commit (never by tag): ``commit `78a8306b86`, clean tree``."""
-    nbs = man.get("notebooks", {})
-    commits = sorted({n.get("commit") or "?" for n in nbs.values()})
-    clean = not any(n.get("dirty") for n in nbs.values())
-    where = (f"commit `{commits[0][:10]}`" if len(commits) == 1
-             else "commits " + ", ".join(f"`{c[:10]}`" for c in commits) + " (notebooks at different commits)")
-    return f"{where}, {'clean tree' if clean else 'uncommitted changes outside results/'}"
 
 
 def _estimate(row) -> str:
@@ -98,7 +89,7 @@ def summary(run) -> str:
         return f"*(no results in {run.path.name}: run the notebooks first)*\n"
     long = pd.concat(parts, ignore_index=True).set_index(["method", "pose", "statistic"])
     rep = pd.read_csv(PAPER / "reported" / "table1_classification.csv")
-    lines = [f"Run `{run.path.name}` ({_commit_line(man)}; {man.get('wall_time_total_s', 0) / 60:.0f} min on "
+    lines = [f"Run `{run.path.name}` ({commit_line(man)}; {man.get('wall_time_total_s', 0) / 60:.0f} min on "
              f"{man.get('hardware', {}).get('cores', '?')} cores). n = test objects / queries; intervals over "
              "test objects.", "",
              "| measure | method | n | reproduced [95 % interval] | paper |", "| --- | --- | --- | --- | --- |"]

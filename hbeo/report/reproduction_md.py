@@ -24,6 +24,7 @@ from pathlib import Path
 
 from hbeo import config
 from hbeo.report import readings, seeds, tables as T
+from hbeo.report.provenance import commit_line
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -44,16 +45,6 @@ def write_reports(run, profile: str, dataset: str) -> list[Path]:
 
 def _read(path: Path) -> str:
     return path.read_text().strip() if path.exists() else f"*(missing: {path.name}; run the notebooks first)*"
-
-
-def _git_line(man: dict) -> str:
-    """Where the run came from, by commit: a clone has no tags, so the manifest's ``git_tag`` is not named."""
-    nbs = man.get("notebooks", {})
-    commits = sorted({n.get("commit") or "?" for n in nbs.values()})
-    clean = not any(n.get("dirty") for n in nbs.values())
-    where = (f"commit `{commits[0][:10]}`" if len(commits) == 1
-             else "commits " + ", ".join(f"`{c[:10]}`" for c in commits) + " (notebooks at different commits)")
-    return f"{where}, {'clean tree' if clean else 'uncommitted changes outside results/'}"
 
 
 def _timing(man: dict) -> list[str]:
@@ -270,7 +261,7 @@ def reproduction_text(run, out: Path) -> str:
         "",
         f"Generated from the run in [`{rel}`]({rel}) by `{cmd}` (or `python -m hbeo report --run "
         f"{os.path.relpath(run.path, config.REPO_ROOT)}`): profile `{man.get('profile')}`, dataset "
-        f"`{man.get('dataset')}`, {_git_line(man)}, code version `{man.get('code_version')}`. Every number below "
+        f"`{man.get('dataset')}`, {commit_line(man)}, code version `{man.get('code_version')}`. Every number below "
         f"is read from a file of that folder; intervals are 95 % bootstrap intervals over test objects "
         f"(`hbeo.evaluation.paired`), n is given with each.",
         "",
