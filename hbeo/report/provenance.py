@@ -130,8 +130,9 @@ def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, 
 
 
 def commit_line(man: dict) -> str:
-    """Where a run came from, by commit (never by tag: a clone has none), from its manifest ``man``:
-    ``commit `78a8306b86`, clean tree``, or each commit when its notebooks ran at different ones."""
+    """Where a run came from, by commit (never by tag: a clone has none), from its manifest ``man``: the
+    commit's first 10 hex digits in backticks and whether the tree was clean, or each commit when its notebooks
+    ran at different ones."""
     nbs = man.get("notebooks", {})
     commits = sorted({n.get("commit") or "?" for n in nbs.values()})
     clean = not any(n.get("dirty") for n in nbs.values())
