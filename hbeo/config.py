@@ -164,6 +164,25 @@ class Profile:
         return {k: flat[k] for k in _FLAT_ORDER}
 
 
+# cpu: every training object (ModelNet10: 3,991), few views each: object variety matters more
+# than views per object (40 views at the same steps gained nothing: experiments/cpu-modelnet10-vox30/26-v40.toml);
+# small images keep an epoch of ~72k images near three minutes on 2 cores for the narrower network (~380 images/s; the wider
+# layers run at ~450-650). The recipe (rotation bins, roll augmentation, voxel shape loss, classes drawn
+# uniformly, shared layers (1024, 512, 512), 60 epochs) is the one chosen on the validation objects (the
+# specs bal30, fc1024 and e60 in experiments/cpu-modelnet10-vox30/). Every test object, 3 paired
+# views each; the slow searches (BEO 3-DOF, ICP) on the first view of 10 objects per class (100 queries, a
+# subset of the same pairs).
+_CPU = Profile(
+    "cpu",
+    data=DataConfig(n_train_per_class=None, n_test_per_class=None, views_per_object=20, image_size=(80, 60),
+                    workers=2, procedural_train_per_class=200),
+    recipe=RecipeConfig(epochs=60, batch_size=64, rotation="bins", augment_roll=True, shape_loss="voxels",
+                        class_balance="sampler", option_epochs=2, options=("paper", "recipe")),
+    network=NetworkConfig(conv_channels=(32, 64, 128, 128), fc=(1024, 512, 512)),
+    baselines=BaselinesConfig(voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=128, voxcnn_epochs=5,
+                              voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3),
+    evaluation=EvaluationConfig(eval_views=3, beo_3dof_test_per_class=10, icp_test_per_class=10))
+
 PROFILES: dict[str, Profile] = {
     "ci": Profile(
         "ci",
@@ -173,24 +192,7 @@ PROFILES: dict[str, Profile] = {
         baselines=BaselinesConfig(beo_so3_grid=400, voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=64,
                                   voxcnn_epochs=3, voxcnn_batch_size=16, voxcnn_lr=3e-3,
                                   voxcnn_views_per_object=None)),
-    # cpu: every training object (ModelNet10: 3,991), few views each: object variety matters more
-    # than views per object (40 views at the same steps gained nothing: experiments/cpu-modelnet10-vox30/26-v40.toml);
-    # small images keep an epoch of ~72k images near three minutes on 2 cores for the narrower network (~380 images/s; the wider
-    # layers run at ~450-650). The recipe (rotation bins, roll augmentation, voxel shape loss, classes drawn
-    # uniformly, shared layers (1024, 512, 512), 60 epochs) is the one chosen on the validation objects (the
-    # specs bal30, fc1024 and e60 in experiments/cpu-modelnet10-vox30/). Every test object, 3 paired
-    # views each; the slow searches (BEO 3-DOF, ICP) on the first view of 10 objects per class (100 queries, a
-    # subset of the same pairs).
-    "cpu": Profile(
-        "cpu",
-        data=DataConfig(n_train_per_class=None, n_test_per_class=None, views_per_object=20, image_size=(80, 60),
-                        workers=2, procedural_train_per_class=200),
-        recipe=RecipeConfig(epochs=60, batch_size=64, rotation="bins", augment_roll=True, shape_loss="voxels",
-                            class_balance="sampler", option_epochs=2, options=("paper", "recipe")),
-        network=NetworkConfig(conv_channels=(32, 64, 128, 128), fc=(1024, 512, 512)),
-        baselines=BaselinesConfig(voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=128, voxcnn_epochs=5,
-                                  voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3),
-        evaluation=EvaluationConfig(eval_views=3, beo_3dof_test_per_class=10, icp_test_per_class=10)),
+    "cpu": _CPU,
     # quick: the default `make reproduce` (the embedded procedural data): the cpu profile's data, network and
     # recipe, sized to finish within 45 minutes alone on 2 cores. The cpu run of the procedural data took about
     # 100 minutes (60 epochs of ~51 s, then ~20 min of BEO's 1-DOF search over 3,000 queries and ~18 min of its
@@ -198,16 +200,10 @@ PROFILES: dict[str, Profile] = {
     # class (3 paired views: 1,500 queries), BEO's 3-DOF search over 400 rotations (mean spacing 27 degrees) on 5
     # objects per class, the 3-D CNN 3 epochs. A budget, not a choice on validation: the ModelNet10 reference
     # run keeps the cpu profile's recipe.
-    "quick": Profile(
-        "quick",
-        data=DataConfig(n_train_per_class=None, n_test_per_class=50, views_per_object=20, image_size=(80, 60),
-                        workers=2, procedural_train_per_class=200),
-        recipe=RecipeConfig(epochs=15, batch_size=64, rotation="bins", augment_roll=True, shape_loss="voxels",
-                            class_balance="sampler", option_epochs=1, options=("paper", "recipe")),
-        network=NetworkConfig(conv_channels=(32, 64, 128, 128), fc=(1024, 512, 512)),
-        baselines=BaselinesConfig(beo_so3_grid=400, voxcnn_channels=(8, 16, 32), voxcnn_bottleneck=128,
-                                  voxcnn_epochs=3, voxcnn_batch_size=32, voxcnn_lr=2e-3, voxcnn_views_per_object=3),
-        evaluation=EvaluationConfig(eval_views=3, beo_3dof_test_per_class=5, icp_test_per_class=10)),
+    "quick": replace(_CPU, name="quick", data=replace(_CPU.data, n_test_per_class=50),
+                     recipe=replace(_CPU.recipe, epochs=15, option_epochs=1),
+                     baselines=replace(_CPU.baselines, beo_so3_grid=400, voxcnn_epochs=3),
+                     evaluation=replace(_CPU.evaluation, beo_3dof_test_per_class=5)),
     # full: the paper's budget. Its footnote: ~7 M 320x240 depth images, roughly 2 epochs (16 h on a GTX 1070).
     # Streamed, a fresh pose per image: 1,800 views x 3,586 training objects (ModelNet10's 3,984 usable
     # training grids less the 398 held out for validation) = 6.45 M images an epoch, 2 epochs = 12.9 M image
