@@ -73,6 +73,18 @@ def _local_workers(text: str) -> int:
 _WORKERS_HELP = "local processes (default: the profile's; 0: one per core this process may use)"
 
 
+def _image_size(text: str) -> tuple[int, int]:
+    """An argparse ``type=`` for ``--image-size W,H``: two whole numbers, 8 to 4096 pixels each."""
+    parts = text.replace("x", ",").split(",")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected W,H (two whole numbers of pixels), got {text!r}") from None
+    if not (8 <= w <= 4096 and 8 <= h <= 4096):
+        raise argparse.ArgumentTypeError(f"expected 8 to 4096 pixels each, got {w}x{h}")
+    return (w, h)
+
+
 def _join_list_values(argv: list[str]) -> list[str]:
     out, i = [], 0
     while i < len(argv):
@@ -143,7 +155,7 @@ def cmd_train(args) -> int:
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead",
-            "augment_mirror")  # TrainOptions' names
+            "augment_mirror", "image_size")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
                         **{k: getattr(args, k) for k in same})
@@ -351,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--data stream --backend torch: images rendered in one march, served to the next batches "
                         "(default: up to 2048 on a GPU, as its free memory allows; one batch on the CPU); the same images")
     p.add_argument("--views", type=COUNT, help="rendered views per training object (default: the profile's)")
+    p.add_argument("--image-size", type=_image_size, metavar="W,H",
+                   help="training image size in pixels, the camera scaled to it (default: the profile's; the model "
+                        "is evaluated at its own size)")
     p.add_argument("--data", choices=("memory", "shards", "stream"),
                    help="training images: the rendered set in memory, the rendered set read shard by shard, or "
                         "rendered on the fly with a fresh pose per object per pass (default: the profile's)")

@@ -143,7 +143,9 @@ class TrainOptions:
     (0: in this process); render_ahead: ``stream`` data with render backend ``torch``: images rendered in
     one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: up to 2,048 on a GPU as its memory allows, a batch on the
     CPU); it changes the speed, not the images; augment_mirror: mirror each training view with probability 1/2,
-    its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.mirror.MirrorAugment`)."""
+    its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.mirror.MirrorAugment`);
+    image_size: (width, height) of the training images (None: the profile's), the camera
+    :meth:`~hbeo.conventions.Intrinsics.kinect` scaled to it: the same views at another resolution."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -166,6 +168,7 @@ class TrainOptions:
     loader_workers: int = 0
     render_ahead: int | None = None
     augment_mirror: bool = False
+    image_size: tuple[int, int] | None = None
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
