@@ -195,12 +195,19 @@ def _add_prior(p) -> None:
                         "(0: the paper's, default; 1: divide by the prior; hbeo.model.inference.HBEO.set_prior_tau)")
 
 
+def _add_completion(p) -> None:
+    p.add_argument("--completion", choices=("nonempty", "paper"),
+                   help="HBEO's completion rule: nonempty (the default: the threshold chosen on validation, never an "
+                        "empty grid; an evaluation also scores the paper's rule beside) or paper (back-projection "
+                        ">= 0.5 only); hbeo.model.completion_rule")
+
+
 def cmd_predict(args) -> int:
     from hbeo.model.answer import predict_file, verify_config
     verify = verify_config(args.verify, args.verify_set)  # bad settings fail before the model is read
     answer = predict_file(args.model, args.depth, args.intrinsics, args.mask, args.depth_scale, args.rolls, verify,
                           args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau,
-                          members=args.ensemble, mirror=args.mirror)
+                          members=args.ensemble, mirror=args.mirror, completion=args.completion)
     for w in answer.warnings:
         print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     r = answer.to_json()
@@ -215,8 +222,10 @@ def cmd_evaluate(args) -> int:
                             sampler=args.sampler, noise=args.noise, per_class=args.per_class, method=args.method,
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
                             max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau,
-                            members=args.ensemble, mirror=args.mirror)
+                            members=args.ensemble, mirror=args.mirror, completion=args.completion)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
+    if "completion_paper" in metrics:               # the paper's rule on the same queries, beside
+        short["completion_paper"] = {k: v for k, v in metrics["completion_paper"].items() if k != "per_query"}
     print(json.dumps(short, indent=2))
     return 2 if (metrics["failures"] and args.strict) else 0
 
@@ -243,6 +252,10 @@ def cmd_report(args) -> int:
         if args.model_table or args.readme:
             raise HBEOError("--seeds writes the seed table alone; --model-table and --readme take --run")
         print("wrote " + ", ".join(map(str, write_seed_table(args.seeds, args.out))))
+        return 0
+    if args.completion_decomposition:             # the completion gap, taken apart (hbeo.report.completion_gap)
+        from hbeo.report.completion_gap import write_decomposition
+        print("wrote " + ", ".join(map(str, write_decomposition(args.completion_decomposition))))
         return 0
     if args.model_table:
         path = model_table.write_model_table(args.run, args.readme)
@@ -415,6 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_prior(p)
     _add_ensemble(p)
     _add_mirror(p)
+    _add_completion(p)
     p = _command(sub, cmd_evaluate, "evaluate", help="render a dataset's views, predict and write the metrics JSON")
     p.add_argument("--model", required=True, help="the run's model.hbeo (its camera and views are used for "
                                                   "every method; baselines live beside it)")
@@ -430,6 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_prior(p)
     _add_ensemble(p)
     _add_mirror(p)
+    _add_completion(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")
@@ -463,6 +478,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seeds", nargs="+", metavar="RUN", help="instead: the spread over training seeds of these runs "
                    "(one profile and dataset, one run per seed, at least 2) -> seeds_table.csv/.md and seeds_claims.csv/.md "
                    "in --out")
+    g.add_argument("--completion-decomposition", metavar="RUN", help="instead: the completion error of RUN's HBEO "
+                   "taken apart (validation threshold scan, ceilings, coefficients, elevation) -> "
+                   "RUN/06_completion_decomposition.csv/.md")
     p.add_argument("--out", help="output file (default: RUN/REPRODUCTION.md; the committed one: paper/REPRODUCTION.md); "
                                  "with --seeds: a folder (default: the first RUN)")
     p.add_argument("--model-table", action="store_true",

@@ -84,7 +84,19 @@ def test_evaluate_writes_the_documented_keys(trained, tmp_path):
     for key in ("accuracy", "pose_error_deg", "completion", "runtime_ms", "per_class", "confusion", "n_queries"):
         assert key in m
     assert m["n_queries"] == 10 and 0 <= m["accuracy"] <= 1
-    assert set(m["completion"]) == {"edt", "naive", "iou", "empty_fraction"}
+    assert set(m["completion"]) == {"edt", "naive", "iou", "empty_fraction", "empty"}
+    # the default completion never leaves a grid empty; the paper's rule is scored beside on the same coefficients
+    from hbeo.model.completion_rule import NONEMPTY
+    assert m["completion_rule"] == NONEMPTY.to_dict() and m["completion"]["empty"] == 0
+    assert not any(m["per_query"]["empty"]) and '"empty": 0' in out.stdout and "completion_paper" in out.stdout
+    paper = run("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--per-class", "1",
+                "--completion", "paper", "--out", str(tmp_path / "p.json"), "--quiet")
+    assert paper.returncode == 0, paper.stderr
+    p = json.loads((tmp_path / "p.json").read_text())
+    assert "completion_rule" not in p and "completion_paper" not in p
+    assert m["completion_paper"]["per_query"] == {k: p["per_query"][k] for k in ("edt", "iou", "empty")}
+    assert m["completion_paper"]["empty"] == sum(p["per_query"]["empty"]) == p["completion"]["empty"]
+    assert m["per_query"]["pred"] == p["per_query"]["pred"]
     assert m["method"] == "hbeo" and m["pose"] == "3dof" and not m["given_class"] and m["precision"] == "float32"
     assert set(m["completion_baseline"]) == {"predicted_class", "true_class", "true_class_iou_t03"}
     assert len(m["per_query"]["pose_deg"]) == 10
@@ -108,7 +120,8 @@ def test_evaluate_baselines_write_the_same_keys(trained, tmp_path, method, pose,
               "--dataset", "procedural", "--per-class", "1", "--out", str(tmp_path / "m.json"), "--quiet")
     assert out.returncode == 0, out.stderr
     h, m = json.loads((tmp_path / "h.json").read_text()), json.loads((tmp_path / "m.json").read_text())
-    assert set(m) == set(h)
+    # the same keys, less HBEO's completion rule and its paper's-rule scores beside (a baseline has one rule)
+    assert set(m) == set(h) - {"completion_rule", "completion_paper"}
     assert (m["method"], m["pose"], m["given_class"]) == (method, pose, given) and m["precision"] is None
     assert m["n_queries"] == 10 and set(m["completion"]) == set(h["completion"])
     if pose == "known":

@@ -82,7 +82,8 @@ def test_method_conformance(boxes, view, factory, pose):
     assert isinstance(m, Method), f"{type(m).__name__} lacks a Method member"
     assert m.name in METHODS and tuple(m.poses) == METHODS[m.name] and pose in m.poses
     extra = m.describe()
-    assert isinstance(extra, dict) and set(extra) <= {"precision", "rolls", "mirror", "verify", "prior_tau", "class_prior", "ensemble"}
+    assert isinstance(extra, dict) and set(extra) <= {"precision", "rolls", "mirror", "verify", "prior_tau", "class_prior", "ensemble",
+                                                 "completion"}
     depth, R, t = view
     before = depth.copy()
     query = dict(R_true=R, t_true=t, object_size=1.0, pose=pose,
@@ -97,6 +98,8 @@ def test_method_conformance(boxes, view, factory, pose):
     check_rotation_matrices(out["rotation"])
     g = np.asarray(out["grid"])
     assert g.shape == (30, 30, 30) and g.dtype == bool
+    if "completion" in extra:                 # another rule than the paper's: its grid scored beside
+        assert np.asarray(out["grid_paper"]).shape == (30, 30, 30) and g.any()
     assert "ms" not in out or out["ms"] >= 0
     if query["label_true"] is not None:                 # given the class, a method answers with it
         assert answer_label(out) == 1

@@ -61,7 +61,8 @@ def test_the_committed_model_reproduces_its_committed_evaluation(reference, monk
 
     run, profile, dataset, n_objects, committed = reference
     ds = _dataset(dataset, profile, monkeypatch, request)
-    model = HBEO.load(run.model)
+    from hbeo.model.completion_rule import of_record
+    model = HBEO.load(run.model).set_completion(of_record(committed.get("completion_rule")))  # the file's rule
     req = committed["request"]
     # the profile's test objects (cpu: the whole split), three views each, as the README says
     assert (req["per_class"], req["views"], req["seed"]) == (config.get_profile(profile).data.n_test_per_class, 3, 0)

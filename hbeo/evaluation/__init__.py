@@ -7,6 +7,8 @@
 - :mod:`~hbeo.evaluation.paired`: paired statistics over objects (bootstrap, contrasts, claim verdicts);
 - :mod:`~hbeo.evaluation.intervals`: bootstrap intervals over objects;
 - :mod:`~hbeo.evaluation.flips`: where large pose errors point (front/back flips about the up axis or not);
+- :mod:`~hbeo.evaluation.decompose`: HBEO's completion error taken apart (threshold scan on validation, ceilings,
+  coefficient R², class/pose and elevation splits, empty completions);
 - :mod:`~hbeo.evaluation.method`: each method's display label.
 
 Nothing here draws, formats or writes a report: that is :mod:`hbeo.report`, one layer up.

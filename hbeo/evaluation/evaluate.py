@@ -12,6 +12,8 @@ answer averaged with the mirrored image's, :meth:`hbeo.model.inference.HBEO.set_
 ``prior_tau`` (HBEO's prior correction, :meth:`hbeo.model.inference.HBEO.set_prior_tau`: 0 = none, the
 paper's; null for the baselines), ``class_prior`` (``{tau, source, counts}`` of a correction, else null) and
 ``ensemble`` (the files, ``{file, sha256}``, of the models whose answers HBEO's were averaged with, else null),
+``completion_rule`` (only when HBEO completed by another rule than the paper's, :mod:`hbeo.model.completion_rule`:
+by default it does, never leaving a grid empty),
 ``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``, ``verify`` (HBEO's
 verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
@@ -25,8 +27,13 @@ or predicted, ``{file, reason, step, object, split}``: left out, the others stil
                                      turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`);
                                      ``within_30``, ``within_30_sym``: fraction of queries within 30
                                      degrees (Acc@pi/6; a median hides a bimodal error, e.g. flips)
-``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.subspace.metrics`) and
-                                     ``empty_fraction`` (queries whose completed grid is empty)
+``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.subspace.metrics`),
+                                     ``empty_fraction`` and ``empty`` (the share and the number of queries
+                                     whose completed grid is empty; files written before the count lack it)
+``completion_paper``                 HBEO under another completion rule than the paper's (``completion_rule``):
+                                     the paper's rule (back-projection >= 0.5) on the same coefficients,
+                                     scored like ``completion`` (``edt``, ``naive``, ``iou``, ``empty_fraction``,
+                                     ``empty``) with its own ``per_query`` ``edt``, ``iou``, ``empty``
 ``completion_baseline``              the trivial answer "the class's mean training shape" (the
                                      subspace's class mean thresholded at 0.5), scored like
                                      ``completion``: ``predicted_class`` (the model's class) and
@@ -136,7 +143,8 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
     out["verify"] = extra["verify"]
     return {"method": method.name, "pose": pose, "given_class": (method.name, pose) in GIVEN_CLASS,
             "precision": extra["precision"], "rolls": extra["rolls"], "mirror": extra["mirror"], "prior_tau": extra["prior_tau"],
-            "class_prior": extra["class_prior"], "ensemble": extra["ensemble"], **out}
+            "class_prior": extra["class_prior"], "ensemble": extra["ensemble"],
+            **({"completion_rule": extra["completion"]} if extra.get("completion") else {}), **out}
 
 
 def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1, seed: int = 0,
@@ -196,6 +204,8 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
                     pred = classes[answer_label(out)]
                     row = {"object": rec.id, "view": j, "class": rec.cls, "pred": pred, "R_true": v["rotation"][j],
                            "R_pred": out["rotation"], "grid": out["grid"], "truth": truth, "ms": ms}
+                    if "grid_paper" in out:
+                        row["grid_paper"] = out["grid_paper"]
                     if means is not None:
                         row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
                     rows[key].append(row)
@@ -306,7 +316,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
                                "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),
                                "within_30": float((raw < 30).mean()), "within_30_sym": float((sym < 30).mean())},
             "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
-                           "empty_fraction": float(empty.mean())},
+                           "empty_fraction": float(empty.mean()), "empty": int(empty.sum())},
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
                            "median_per_query": float(np.median([r["ms"] for r in rows]))},
             "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
@@ -316,7 +326,21 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
                           "pose_sym_deg": sym.round(4).tolist(), "edt": edt.round(6).tolist(),
                           "naive": nai.round(6).tolist(), "iou": io.round(6).tolist(), "empty": empty.tolist(),
                           "ms": [round(float(r["ms"]), 4) for r in rows]},
-            **_baseline(rows, truth)}
+            **_baseline(rows, truth), **_paper_rule(rows, truth)}
+
+
+def _paper_rule(rows: list[dict], truth: np.ndarray) -> dict:
+    """``completion_paper`` and its per-query columns when every row also carries the paper's rule's grid (HBEO
+    under another completion rule), else ``{}``."""
+    if not rows or not all("grid_paper" in r for r in rows):
+        return {}
+    g = np.stack([r["grid_paper"] for r in rows])
+    edt, nai, io = edt_error(truth, g), naive_error(truth, g), iou(truth, g)
+    empty = g.reshape(len(g), -1).sum(1) == 0
+    return {"completion_paper": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
+                                 "empty_fraction": float(empty.mean()), "empty": int(empty.sum()),
+                                 "per_query": {"edt": edt.round(6).tolist(), "iou": io.round(6).tolist(),
+                                               "empty": empty.tolist()}}}
 
 
 def _baseline(rows: list[dict], truth: np.ndarray) -> dict:

@@ -19,7 +19,7 @@ the conformance suite every registered method passes):
 ``describe() -> dict``
     what the metrics dict records of the method's own settings beyond name and pose (HBEO:
     ``precision``, ``rolls``, ``mirror``, ``verify``, ``prior_tau``, ``class_prior`` and ``ensemble``: the files of the
-    models averaged with it, or None; a baseline: ``{}``).
+    models averaged with it, or None; ``completion`` only when not the paper's rule; a baseline: ``{}``).
 
 Preparation is not the loop's: a method arrives ready to answer (a baseline fitted or loaded by
 :func:`hbeo.baselines.methods.load_method`, HBEO loaded and wrapped in :class:`HBEOMethod`).
@@ -119,7 +119,7 @@ class HBEOMethod:
         return {"precision": getattr(self.model, "precision", "float32"), "rolls": self.rolls,
                 "mirror": bool(getattr(self.model, "mirror", False)),
                 "verify": verify.to_dict() if verify is not None else None, "prior_tau": tau, "class_prior": prior,
-                "ensemble": list(members) if members else None}
+                "ensemble": list(members) if members else None, **_completion(self.model)}
 
     def _prediction(self, depth, intrinsics):
         if self._shared is None:
@@ -141,14 +141,26 @@ class HBEOMethod:
         p = self._prediction(depth, intrinsics)
         own = {"label": int(p.labels[0]), "probabilities": p.probabilities[0], "rotation": p.rotation[0],
                "grid": p.grids[0], "ms": p.timing_ms["total"]}
+        if self.model.completion.name != "paper":      # the paper's rule on the same coefficients, scored beside
+            own["grid_paper"] = self.model.subspace.reconstruct(p.coeffs[:1].astype(np.float32), threshold=0.5)[0]
         if self._base is not None:
             base = self._base.predict_view(depth, intrinsics, pose=pose)
             return base if base["agreement"] >= self.min_agreement else {**own, "ms": base["ms"]}
         if self._verifier is None:
             return own
         x = self._verified(depth, intrinsics, p)
-        return {"label": int(x["label"]), "probabilities": x["probabilities"], "rotation": x["rotation"],
-                "grid": x["grid"], "ms": p.timing_ms["total"] + x["ms"], "agreement": x["agreement"]}
+        out = {"label": int(x["label"]), "probabilities": x["probabilities"], "rotation": x["rotation"],
+               "grid": x["grid"], "ms": p.timing_ms["total"] + x["ms"], "agreement": x["agreement"]}
+        if "grid_paper" in own:
+            out["grid_paper"] = x["grid_paper"]
+        return out
+
+
+def _completion(model) -> dict:
+    """``{"completion": rule dict}`` when the model completes by another rule than the paper's
+    (:meth:`hbeo.model.inference.HBEO.set_completion`), else ``{}`` (the paper's leaves no key)."""
+    rule = getattr(model, "completion", None)
+    return {} if rule is None or rule.name == "paper" else {"completion": rule.to_dict()}
 
 
 def _with_agreement(cfg, x: float):

@@ -236,7 +236,8 @@ def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
 def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int = 1, seed: int = 0, sampler=None,
                   noise: bool = False, per_class: int | None = None, method: str = "hbeo", pose: str | None = None,
                   precision: str = "float32", rolls: int = 1, verify=None, max_steps: int | None = None,
-                  progress: bool = True, prior_tau: float = 0.0, members=(), mirror: bool = False) -> dict:
+                  progress: bool = True, prior_tau: float = 0.0, members=(), mirror: bool = False,
+                  completion: str | None = None) -> dict:
     """``python -m hbeo evaluate``: the metrics of ``method`` (HBEO, or a baseline fitted/trained beside the
     model file when missing) on ``dataset``'s ``split`` (read with the model's profile), written to ``out``
     (JSON); ``split="val"`` also adds a row to the model folder's ``validation.csv``; objects that could not
@@ -245,7 +246,9 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     file without them, the dataset's (:func:`hbeo.data.datasets.training_class_counts` of the model's profile;
     the metrics' ``class_prior.source`` says so). ``members``: model files averaged with HBEO's
     (:meth:`hbeo.model.inference.HBEO.add_members`; the metrics' ``ensemble`` names them). ``mirror``: HBEO's class
-    answer averaged with the mirrored image's (:meth:`hbeo.model.inference.HBEO.set_mirror`). Returns the metrics."""
+    answer averaged with the mirrored image's (:meth:`hbeo.model.inference.HBEO.set_mirror`). ``completion``: HBEO's
+    completion rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty). Returns the
+    metrics."""
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_file, check_outputs
     check_outputs({"--out": out}, {"--model": model_path, **{f"--ensemble {f}": f for f in members}})
@@ -253,6 +256,8 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
         raise ValueError(f"--ensemble averages HBEO models; method {method!r} is not HBEO")
     if mirror and method != "hbeo":
         raise ValueError(f"--mirror averages HBEO's class answer; method {method!r} is not HBEO")
+    if completion is not None and method != "hbeo":
+        raise ValueError(f"--completion is HBEO's completion rule; method {method!r} is not HBEO")
     check_rolls(rolls)                                  # before the model is read (and before torch is imported)
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
@@ -265,7 +270,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     ds = load_dataset(dataset, profile)
     baseline_inputs(folder, method, model, ds, dataset, progress=progress)     # grids, basis: built if missing
     model_prior(model, ds, prior_tau)
-    model.set_mirror(mirror)
+    model.set_mirror(mirror).set_completion(completion)
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
                              per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)

@@ -114,7 +114,7 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 
 def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_scale: float | None = None,
                  rolls: int = 1, verify=None, precision: str = "float32", out=None, mesh_path=None,
-                 prior_tau: float = 0.0, members=(), mirror: bool = False) -> Answer:
+                 prior_tau: float = 0.0, members=(), mirror: bool = False, completion: str | None = None) -> Answer:
     """``python -m hbeo predict``: read ``depth_path`` (16-bit PNG in mm or float ``.npy``/``.tiff`` in m,
     times ``depth_scale``), its ``intrinsics`` ``"fx,fy,cx,cy"`` and optional mask file
     (:mod:`hbeo.model.depthfile`), and answer with the model file ``model_path`` (network arithmetic
@@ -125,7 +125,9 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     place, and a bad output path (or one naming an input) fails before any work. DataError names the file
     at fault. ``members``: model files averaged with ``model_path``'s (:meth:`hbeo.model.inference.HBEO.add_members`;
     the answer's ``ensemble`` names them). ``mirror``: the class answer averaged with the mirrored image's
-    (:meth:`hbeo.model.inference.HBEO.set_mirror`; the answer's ``mirror`` says so)."""
+    (:meth:`hbeo.model.inference.HBEO.set_mirror`; the answer's ``mirror`` says so). ``completion``: the completion
+    rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty; another than ``paper`` is
+    named in the answer's ``completion``)."""
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_files, check_outputs, json_text
@@ -143,11 +145,14 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
         raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
     from hbeo.model.inference import HBEO           # torch: once the inputs are known good
     model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau, members=members).set_mirror(mirror)
+    model.set_completion(completion)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
                     verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
     if model.mirror:
         answer.extra["mirror"] = True
+    if model.completion.name != "paper":
+        answer.extra["completion"] = model.completion.to_dict()
     if model.members:
         answer.extra["ensemble"] = list(model.member_files)
     data = None

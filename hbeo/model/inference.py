@@ -133,6 +133,26 @@ class HBEO:
         self.set_precision(precision)
         self.set_prior_tau(prior_tau)
         self.set_mirror(False)
+        self.set_completion()
+
+    def set_completion(self, rule=None, threshold: float | None = None) -> "HBEO":
+        """How :meth:`predict` completes the back-projection (:mod:`hbeo.model.completion_rule`): ``"nonempty"``
+        (the default, :data:`~hbeo.model.completion_rule.DEFAULT`: the threshold chosen on validation, and never an
+        empty grid), ``"paper"`` (>= 0.5) or a :class:`~hbeo.model.completion_rule.CompletionRule`; ``threshold``
+        overrides the rule's. Returns self."""
+        from hbeo.model.completion_rule import DEFAULT, class_occupancy, rule as completion_rule
+        self.completion = completion_rule(DEFAULT if rule is None else rule, threshold)
+        self._occupancy = class_occupancy(self.subspace, self.classes) if self.completion.fallback else None
+        return self
+
+    def complete(self, coeffs, labels) -> np.ndarray:
+        """Coefficients (B, k) of answers of class indices ``labels`` (B,) -> bool grids (B, 30, 30, 30) under the
+        model's completion rule (:meth:`set_completion`; the class sets the never-empty rule's voxel count)."""
+        fields = np.asarray(coeffs, np.float32)
+        if self.completion.fallback:               # a never-empty rule (not the paper's)
+            return self.completion.complete(self.subspace.reconstruct(fields),
+                                            self._occupancy[np.asarray(labels, np.int64)])
+        return self.subspace.reconstruct(fields, threshold=self.completion.threshold)
 
     def set_mirror(self, mirror: bool) -> "HBEO":
         """Test-time mirror averaging of the class answer; returns self. With ``mirror``, :meth:`predict`
@@ -413,7 +433,7 @@ class HBEO:
                 c = c * np.asarray(ms.coeff_std) + np.asarray(ms.coeff_mean)
             coeffs = coeffs + c
         coeffs = coeffs / len(nets)
-        grids = self.subspace.reconstruct(coeffs.astype(np.float32), threshold=0.5)
+        grids = self.complete(coeffs, probs.argmax(1))
         t3 = time.perf_counter()
         scale = np.array([v.distance / s.ref_distance if s.ref_distance else 1.0 for v in views])
         trans = np.stack([v.center / np.linalg.norm(v.center) * v.distance for v in views])
@@ -472,7 +492,7 @@ class HBEO:
         (metres): grid surface, scaled, rotated by the predicted pose, moved to the estimated centre."""
         from hbeo.render.renderer import grid_mesh
         if not pred.grids[i].any():
-            raise ValueError("the completed grid is empty (no coefficient combination above 0.5)")
+            raise ValueError(f"the completed grid is empty (no back-projected voxel reaches {self.completion.threshold:g})")
         mesh = grid_mesh(pred.grids[i], object_size=self.settings.object_size * float(pred.scale[i]))
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = pred.rotation[i], pred.translation[i]

@@ -252,8 +252,9 @@ class Verifier:
     def verify(self, depth: np.ndarray, intrinsics: Intrinsics, pred, i: int = 0) -> dict:
         """Verify query ``i`` of ``pred`` (made from ``depth`` (H, W) metres with ``intrinsics``).
         Returns {"probabilities" (C,), "label", "rotation" (3, 3), "translation" (3,), "coeffs" (k,),
-        "grid" (30^3 bool), "score", "n_hypotheses", "agreement" (:func:`depth_agreement` of the best
-        hypothesis' completion rendered at its pose), "kept_network" (agreement below
+        "grid" (30^3 bool, under the model's completion rule), "grid_paper" (the same coefficients at 0.5, the
+        paper's rule), "score", "n_hypotheses", "agreement" (:func:`depth_agreement` of the best hypothesis'
+        completion at 0.5 rendered at its pose), "kept_network" (agreement below
         ``min_agreement``: the answer is HBEO's own), "ms"}."""
         t0 = time.perf_counter()
         cfg, model = self.cfg, self.model
@@ -296,6 +297,10 @@ class Verifier:
             out.update(probabilities=np.asarray(pred.probabilities[i], np.float64), label=int(pred.labels[i]),
                        rotation=pred.rotation[i], translation=pred.translation[i],
                        coeffs=np.asarray(pred.coeffs[i], np.float32), grid=pred.grids[i])
+            out["grid_paper"] = model.subspace.reconstruct(out["coeffs"][None], threshold=0.5)[0]
+        else:                                            # the model's completion rule (the agreement used 0.5's)
+            out["grid_paper"] = grid
+            out["grid"] = model.complete(o[None], [out["label"]])[0]
         out["ms"] = (time.perf_counter() - t0) * 1e3
         return out
 

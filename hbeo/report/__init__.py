@@ -10,6 +10,8 @@
 - :mod:`~hbeo.report.readme`: the README's verdict and command table, and the documentation's generated blocks;
 - :mod:`~hbeo.report.readings`: ``REPRODUCTION.md``'s section on the paper's claims under each reading of the
   view protocol;
+- :mod:`~hbeo.report.completion_gap`: ``REPRODUCTION.md``'s section on HBEO's completion error taken apart, its
+  table and notebook 06's figure of it;
 - :mod:`~hbeo.report.seeds`: the spread over training seeds of runs that differ only in that seed;
 - :mod:`~hbeo.report.compare`: whether two run folders' tables agree, the measured timing columns aside;
 - :mod:`~hbeo.report.notebooks`: running the numbered notebooks with papermill;

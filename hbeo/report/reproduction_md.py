@@ -23,7 +23,7 @@ import os
 from pathlib import Path
 
 from hbeo import config
-from hbeo.report import readings, seeds, tables as T
+from hbeo.report import completion_gap, readings, seeds, tables as T
 from hbeo.report.provenance import commit_line
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
@@ -304,6 +304,9 @@ def reproduction_text(run, out: Path) -> str:
         "",
         fig("06_gallery", "completion gallery"),
         "",
+        *completion_gap.section(run, man),
+        *([fig(completion_gap.NAME, "the completion error taken apart"), ""]
+          if run.figure(completion_gap.NAME).exists() else []),
         "## Table II: runtime per query",
         "",
         _read(run.table(T.TABLE2, "md")),

@@ -1,0 +1,176 @@
+"""The completion gap, taken apart: ``06_completion_decomposition.csv/.md/.png`` of a run, its section of
+``REPRODUCTION.md`` and its figure for notebook 06.
+
+:func:`write_decomposition` (``python -m hbeo report --completion-decomposition RUN``) runs the run's HBEO model on
+its validation and test query views (:func:`hbeo.evaluation.decompose.collect`), reads the run's evaluations of
+the same test queries (``eval_hbeo_3dof.json``, ``eval_beo_known.json``, ``eval_voxcnn_known.json``) and writes
+the table of :func:`hbeo.evaluation.decompose.decomposition` (columns :data:`~hbeo.evaluation.decompose.COLUMNS`;
+e' in voxel units, IoU a fraction, elevations in degrees) as CSV and Markdown. :func:`section` builds the
+Markdown section :data:`TITLE` from the CSV alone; :func:`figure` draws it. Nothing here changes a number.
+
+May import: foundation, model, run, evaluation and :mod:`hbeo.report.tables`.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pandas as pd
+
+from hbeo.report import tables as T
+from hbeo.rundir import RunDir
+from hbeo.storage import atomic_text
+
+#: the table's name in a run folder (``.csv`` and ``.md``)
+NAME = "06_completion_decomposition"
+TITLE = "The completion gap, taken apart"
+COMMAND = "python -m hbeo report --completion-decomposition {run}"
+
+
+def write_decomposition(run, progress: bool = True) -> list:
+    """Compute and write ``NAME.csv``, ``NAME.md`` and the figure ``NAME.png`` in ``run``; returns their paths."""
+    from hbeo.evaluation.decompose import collect, decomposition
+    from hbeo.model.inference import HBEO
+    from hbeo.run import load_dataset
+    run = RunDir.of(run)
+    evals = {k: json.loads(run.evaluation(*mp).read_text()) if run.evaluation(*mp).exists() else None
+             for k, mp in (("hbeo", ("hbeo", "3dof")), ("beo", ("beo", "known")), ("voxcnn", ("voxcnn", "known")))}
+    if evals["hbeo"] is None or evals["beo"] is None:
+        raise FileNotFoundError(f"{run.path}: needs eval_hbeo_3dof.json and eval_beo_known.json (notebook 06)")
+    model = HBEO.load(run.model)
+    h = evals["hbeo"]
+    ds = load_dataset(h["dataset"], model.settings.profile or "cpu")
+    views, seed = int(h["views"]), int(h["seed"])
+    val = collect(model, ds, "val", views, seed, progress=progress)
+    test = collect(model, ds, "test", views, seed, progress=progress)
+    table, _ = decomposition(model, test, val, evals)
+    csv, md = run.table(NAME), run.table(NAME, "md")
+    atomic_text(csv, table.to_csv(index=False, float_format="%.6g"))
+    atomic_text(md, "\n".join(markdown(table, os.path.relpath(run.path, _root()))) + "\n")
+    import matplotlib.pyplot as plt
+    from hbeo.report.figures import save
+    fig = figure(run)
+    png = save(fig, run, NAME)
+    plt.close(fig)
+    return [csv, md, png]
+
+
+def _root():
+    from hbeo import config
+    return config.REPO_ROOT
+
+
+def _ci(r) -> str:
+    return f"{r.mean_edt:.0f} [{r.mean_edt_low:.0f}, {r.mean_edt_high:.0f}]"
+
+
+def _block(t: pd.DataFrame, section: str, cols: dict) -> str:
+    d = t[t["section"] == section]
+    out = pd.DataFrame({head: (d.apply(f, axis=1) if callable(f) else d[f]) for head, f in cols.items()})
+    return T.to_markdown(out.reset_index(drop=True))
+
+
+def _count(r) -> str:
+    return str(int(r["empty"]))           # not r.empty: a Series' own attribute (is it empty?)
+
+
+def markdown(table: pd.DataFrame, run_rel: str = "RUN") -> list[str]:
+    """The Markdown lines of the decomposition (tables of each section) from its table alone."""
+    t = table
+    val = t[t["section"] == "validation"]
+    chosen = float(val.iloc[-1]["threshold"])
+    comp = t[t["section"] == "completion"]
+    hbeo = comp[comp["row"].str.startswith("HBEO (paper")].iloc[0]
+    n_empty = int(hbeo["empty"])
+    edt_cols = {"": "row", "n": lambda r: str(int(r.n)), "mean e' [95 %]": _ci,
+                "median e'": lambda r: f"{r.median_edt:.0f}", "mean IoU": lambda r: f"{r.mean_iou:.3f}",
+                "empty": _count}
+    chk = t[t["section"] == "check"]
+    agree = (f" The model run again for this table gives the evaluation file's class on "
+             f"{100 * float(chk.iloc[0]['accuracy']):.2f} % of the {int(chk.iloc[0]['n'])} test queries, and an empty "
+             f"completion at 0.5 where the file has one on all but {int(chk.iloc[0]['empty'])}." if len(chk) else "")
+    lines = [f"Regenerate: `{COMMAND.format(run=run_rel)}` (`hbeo.evaluation.decompose`). e' in voxels; "
+             "95 % bootstrap intervals over objects; every row scores the same paired queries. The metric gives an "
+             "empty completion the grid's diagonal as its distance field everywhere (`hbeo.subspace.metrics`), so "
+             f"each of HBEO's {n_empty} empty test completions costs several thousand e'." + agree, "",
+             "**Test queries** (the threshold row and the never-empty row are deviations from the paper, chosen on "
+             "validation; the paper's 0.5 beside them):", "",
+             _block(t, "completion", {**edt_cols, "accuracy": lambda r: "–" if pd.isna(r.accuracy) else
+                                      f"{100 * r.accuracy:.1f} %"}), "",
+             f"**Validation queries** (the threshold scan; chosen by lowest mean e': **{chosen:g}**"
+             + (", the edge of the scanned range, which was fixed with the rule before the scan ran: a threshold "
+                "beyond it was not tried" if chosen in (val["threshold"].iloc[:-1].min(), val["threshold"].iloc[:-1].max())
+                and len(val) > 2 else "") + "):", "",
+             T.to_markdown(pd.DataFrame({"threshold": [f"{x:g}" for x in val["threshold"]],
+                                         "": val["row"].to_numpy(), "n": [str(int(x)) for x in val["n"]],
+                                         "mean e' [95 %]": [_ci(r) for r in val.itertuples()],
+                                         "median e'": [f"{x:.0f}" for x in val["median_edt"]],
+                                         "mean IoU": [f"{x:.3f}" for x in val["mean_iou"]],
+                                         "empty": [str(int(x)) for x in val["empty"]]})), "",
+             "**HBEO's coefficients against the target W^T o** (test; R² about the overall mean, and about each "
+             "class's mean target: 0 there is no better than each class's average coefficients):", "",
+             _block(t, "coefficients", {"": "row", "share of squared error": lambda r: f"{100 * r.error_share:.1f} %",
+                                        "R² (overall)": lambda r: f"{r.r2_global:.3f}",
+                                        "R² (within class)": lambda r: f"{r.r2_class:.3f}"}), "",
+             "**HBEO's completions by whether its class and pose were right** (test, paper's rule):", "",
+             _block(t, "hbeo_split", edt_cols), "",
+             "**By camera elevation** (test; the optical axis's elevation above the object's horizon, recovered from "
+             "each query's view stream):", "",
+             _block(t, "elevation", {**edt_cols, "accuracy": lambda r: f"{100 * r.accuracy:.1f} %"}), "",
+             "**Empty completions per class** (test):", "",
+             _empty_block(t), ""]
+    return lines
+
+
+def _empty_block(t: pd.DataFrame) -> str:
+    e = t[t["section"] == "empty"].copy()
+    e[["method", "class"]] = e["row"].str.rsplit(": ", n=1, expand=True)
+    wide = e.pivot_table(index="class", columns="method", values="empty", aggfunc="first", sort=False)
+    n = e.drop_duplicates("class").set_index("class")["n"]
+    wide = wide.astype(int)
+    wide.insert(0, "queries", n.loc[wide.index].astype(int))
+    return T.to_markdown(wide.reset_index().astype({c: str for c in wide.columns}))
+
+
+def section(run, man: dict | None = None) -> list[str]:
+    """The lines of the section :data:`TITLE` of ``REPRODUCTION.md`` from the run's ``NAME.csv`` (a line saying
+    how to make it when the run has none)."""
+    run = RunDir.of(run)
+    path = run.table(NAME)
+    head = [f"## {TITLE}", ""]
+    if not path.exists():
+        return head + [f"Not computed for this run: `{COMMAND.format(run=run.path)}` writes it.", ""]
+    return head + markdown(pd.read_csv(path), os.path.relpath(run.path, _root())) + [""]
+
+
+def figure(run):
+    """Notebook 06's figure of the decomposition: mean e' of each test row, the validation threshold scan, and
+    accuracy and IoU by camera elevation. Returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+    t = pd.read_csv(RunDir.of(run).table(NAME))
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
+    comp = t[t["section"] == "completion"]
+    y = np.arange(len(comp))
+    ax[0].barh(y, comp["mean_edt"], xerr=[comp["mean_edt"] - comp["mean_edt_low"],
+                                          comp["mean_edt_high"] - comp["mean_edt"]], color="tab:blue")
+    ax[0].set_yticks(y, [r if len(r) < 40 else r[:38] + "…" for r in comp["row"]], fontsize=7)
+    ax[0].invert_yaxis()
+    ax[0].set_xlabel("mean e' (test, voxels)")
+    val = t[t["section"] == "validation"].iloc[:-1]
+    ax[1].plot(val["threshold"], val["mean_edt"], "o-", label="mean e'")
+    ax[1].plot(val["threshold"], val["median_edt"], "s--", label="median e'")
+    ax[1].set_xlabel("completion threshold (validation)")
+    ax[1].set_ylabel("e' (voxels)")
+    ax[1].legend()
+    el = t[t["section"] == "elevation"]
+    for who, mark in (("HBEO", "o-"), ("BEO, known pose", "s--")):
+        d = el[el["row"].str.startswith(who + ",")]
+        names = [r.split(", ")[-1].split(" (")[0] for r in d["row"]]
+        ax[2].plot(names, d["accuracy"], mark, label=f"{who}: accuracy")
+        ax[2].plot(names, d["mean_iou"], mark, alpha=0.5, label=f"{who}: IoU")
+    ax[2].set_ylim(0, 1)
+    ax[2].set_xlabel("camera elevation (test)")
+    ax[2].legend(fontsize=7)
+    fig.tight_layout()
+    return fig
