@@ -222,7 +222,8 @@ def cmd_evaluate(args) -> int:
                             sampler=args.sampler, noise=args.noise, per_class=args.per_class, method=args.method,
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
                             max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau,
-                            members=args.ensemble, mirror=args.mirror, completion=args.completion)
+                            members=args.ensemble, mirror=args.mirror, completion=args.completion,
+                            batched=args.batch)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     if "completion_paper" in metrics:               # the paper's rule on the same queries, beside
         short["completion_paper"] = {k: v for k, v in metrics["completion_paper"].items() if k != "per_query"}
@@ -447,6 +448,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_completion(p)
     p.add_argument("--pose", choices=("known", "1dof", "3dof"),
                    help="what the method must estimate: hbeo 3dof; beo known|1dof|3dof; icp 1dof|3dof; voxcnn known")
+    p.add_argument("--batch", action="store_true",
+                   help="HBEO's one pass: each chunk of views through the network in one call (the same answers; "
+                        "ms per query is the batch's time shared; not with --verify)")
     p.add_argument("--dataset", default="procedural", help="procedural | modelnet10 | modelnet10-vox30 | PATH")
     p.add_argument("--split", choices=("train", "test", "val"), default="test",
                    help="test (default); val: the training objects that training held out, where choices are made "

@@ -64,3 +64,31 @@ def test_evaluation_reads_its_cache_only_for_the_same_request(tmp_path, monkeypa
     monkeypatch.setattr(protocol, "code_version", lambda: "other code")   # the code changed
     with pytest.raises(DataError):
         protocol.evaluation(r, "beo", "3dof")
+
+
+def test_batched_evaluation_gives_the_per_query_answers(ci_model):
+    """HBEO's one pass on a chunk of views in one network call answers every query as the per-query loop does:
+    the same classes and completions, poses within float32 rounding (the network's kernels may sum a batch in
+    another order)."""
+    from hbeo import config
+    from hbeo.data.datasets import get_dataset
+    from hbeo.evaluation.evaluate import evaluate_model
+    from hbeo.model.inference import HBEO
+    model = HBEO.load(ci_model)
+    ds = get_dataset("procedural", profile=config.get_profile("ci"))
+    one = evaluate_model(model, ds, split="test", views=2, seed=3, progress=False)
+    many = evaluate_model(model, ds, split="test", views=2, seed=3, progress=False, batched=True, chunk=4)
+    assert many["batched"] is True and "batched" not in one
+    a, b = one["per_query"], many["per_query"]
+    assert len(a["pred"]) == len(b["pred"]) == one["n_queries"] > 8
+    for key in ("object", "view", "class", "pred", "empty"):
+        assert a[key] == b[key], key
+    np.testing.assert_allclose(a["pose_deg"], b["pose_deg"], atol=1e-3)
+    np.testing.assert_allclose(a["edt"], b["edt"], rtol=1e-6)
+    np.testing.assert_allclose(a["iou"], b["iou"], atol=1e-6)
+    assert one["completion_paper"]["per_query"] == many["completion_paper"]["per_query"]
+    # verify has no batched path: the per-query loop answers, and the file does not say batched
+    from hbeo.model.verify import VerifyConfig
+    v = evaluate_model(model, ds, split="test", views=1, seed=3, per_class=1, progress=False, batched=True,
+                       verify=VerifyConfig())
+    assert "batched" not in v

@@ -18,7 +18,7 @@ OBJECTS, VIEWS, CLASSES = ["a", "a", "b", "b", "c", "c"], [0, 1, 0, 1, 0, 1], ["
 
 
 def _metrics(split, pred, pose=(10, 50, 20, 100, 5, 170), sym=(10, 5, 20, 100, 5, 10), iou=0.6, ms=5.0,
-             old=False, **top):
+             old=False, edt=200.0, empty=(False,) * 6, **top):
     """A metrics dict whose top-level figures follow its per_query columns; ``old``: a file from before
     class_mean_accuracy and within_30_sym (they must then come from per_query)."""
     pose, sym, pred = np.array(pose, float), np.array(sym, float), list(pred)
@@ -29,9 +29,9 @@ def _metrics(split, pred, pose=(10, 50, 20, 100, 5, 170), sym=(10, 5, 20, 100, 5
          "class_mean_accuracy": float(np.mean([correct[cls == c].mean() for c in ("x", "y")])),
          "pose_error_deg": {"median": float(np.median(pose)), "within_30": float((pose < 30).mean()),
                             "within_30_sym": float((sym < 30).mean())},
-         "completion": {"iou": iou}, "runtime_ms": {"mean_per_query": ms},
+         "completion": {"iou": iou, "edt": edt}, "runtime_ms": {"mean_per_query": ms},
          "per_query": {"object": OBJECTS, "view": VIEWS, "class": CLASSES, "pred": pred, "pose_deg": pose.tolist(),
-                       "pose_sym_deg": sym.tolist(), "iou": [iou] * 6, "ms": [ms] * 6}}
+                       "pose_sym_deg": sym.tolist(), "iou": [iou] * 6, "empty": list(empty), "ms": [ms] * 6}}
     if old:
         del m["class_mean_accuracy"], m["pose_error_deg"]["within_30_sym"]
     m.update(top)
@@ -55,11 +55,12 @@ def _cells(line: str) -> list[str]:
 
 
 def _run(tmp_path, **kw):
-    files = {"v1.json": _metrics("val", ONE_Y_WRONG, old=True), "t1.json": _metrics("test", HBEO),
+    files = {"v1.json": _metrics("val", ONE_Y_WRONG, old=True),
+             "t1.json": _metrics("test", HBEO, empty=(True, False, False, True, False, False)),
              "v2.json": _metrics("val", ALL_X), "vv.json": _metrics("val", ONE_Y_WRONG),
              "tv.json": _metrics("test", ONE_Y_WRONG, pose=(10, 50, 20, 100, 5, 170), iou=0.5, ms=60.0, rolls=4,
                                  verify={"classes": 1}),
-             "b.json": _metrics("test", ONE_Y_WRONG, pose=[0.0] * 6, sym=[0.0] * 6, iou=0.7, ms=14.0,
+             "b.json": _metrics("test", ONE_Y_WRONG, pose=[0.0] * 6, sym=[0.0] * 6, iou=0.7, ms=14.0, edt=160.0,
                                 method="beo", rolls=None)}
     files["b.json"]["pose"] = "known"
     files.update(kw.pop("files", {}))
@@ -192,6 +193,10 @@ def test_each_target_met_or_missed_with_its_gap(tmp_path):
                                          "50.0 %: missed by 15.0 points", "100.0 %"]
     assert t["pose within 30°, modulo symmetry"] == ["≥ 80.0 %", "83.3 %: met", "83.3 %: met", "100.0 %"]
     assert t["completion IoU"] == ["≥ 0.550", "0.600: met", "0.500: missed by 0.050", "0.700"]
+    # mean e' against 1.25 x BEO's (160, b.json): 200 met; empty completions: t1 has two, tv none
+    assert t["completion, mean EDT e′"] == [
+        "≤ 1.25 × BEO with known pose on the same views (160, `b.json`)", "200: met", "–", "160"]
+    assert t["empty completions"] == ["≤ 0", "2: missed by 2", "0: met", "0"]
     assert t["ms per query (2-core CPU)"] == ["≤ 10.0 (hbeo), ≤ 50.0 (hbeo+verify)", "5.0: met",
                                               "60.0: missed by 10.0 ms", "14.0"]
 

@@ -194,3 +194,28 @@ def test_the_loss_keeps_its_constants_on_the_device_instead_of_copying_them_ever
     w = task._class_weights(like)
     assert task._class_weights(like) is w and w.tolist() == [1.0, 2.0, 0.5]
     assert HBEONetTask(CFG)._scale(like) == 1.0 and HBEONetTask(CFG)._class_weights(like) is None
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_the_gpu_step_never_waits_for_the_device():
+    """On a GPU the loop's step (hbeo.model.loop.train_step: bfloat16 autocast without a gradient scaler, the
+    fused AdamW, gradient clipping) runs under torch's sync debug mode set to "error": any host wait (a read of a
+    device value, a nonzero, a non-pinned copy) raises. The batch is copied pinned and non-blocking, as the
+    loop's ``_to`` does with a DataLoader's pinned batches."""
+    from hbeo.model.loop import _to, optimizer, train_step
+    device = torch.device("cuda")
+    cfg = TrainConfig(lr=1e-3)
+    task = HBEONetTask(CFG)
+    module = task.build().to(device)
+    opt = optimizer(module.parameters(), cfg, device)
+    scaler = torch.amp.GradScaler("cuda", enabled=False)
+    loader = torch.utils.data.DataLoader(Toy(8, 0), batch_size=4, pin_memory=True)
+    batches = [_to(b, device) for b in loader]
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        for b in batches * 2:
+            loss = train_step(task, module, module, b, opt, scaler, 1e-3, 1.0, torch.bfloat16)
+    finally:
+        torch.cuda.set_sync_debug_mode("default")
+    assert torch.isfinite(loss).item()

@@ -101,21 +101,24 @@ class EvaluationSetup:
 
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
                    noise: bool = False, per_class: int | None = None, progress: bool = True,
-                   chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1, verify=None) -> dict:
+                   chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1, verify=None,
+                   batched: bool = False) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
     ``model`` (an HBEO model) fixes the evaluation's setup (:meth:`EvaluationSetup.of_model`).
     ``method``: None for the model itself (:class:`~hbeo.evaluation.method.HBEOMethod` with
     ``rolls`` and ``verify``), or any :class:`~hbeo.evaluation.method.Method` (a baseline,
     :mod:`hbeo.baselines.methods`) scored at pose setting ``pose`` (None: its first). See
-    :func:`evaluate_method`, which needs no HBEO model."""
+    :func:`evaluate_method`, which needs no HBEO model. ``batched``: HBEO's one pass answers a chunk of views
+    in one network call (:meth:`~hbeo.evaluation.method.HBEOMethod.predict_views`; not with ``verify``)."""
     if verify is not None and method is not None:
         raise ValueError("verify applies to HBEO itself, not to a baseline")
     own = method is None
     if own:
         method = HBEOMethod(model, rolls=rolls, verify=verify)
     m = evaluate_method(method, dataset, EvaluationSetup.of_model(model), split=split, views=views, seed=seed,
-                        sampler=sampler, noise=noise, per_class=per_class, progress=progress, chunk=chunk, pose=pose)
+                        sampler=sampler, noise=noise, per_class=per_class, progress=progress, chunk=chunk, pose=pose,
+                        batched=batched)
     device = getattr(model, "device", None)
     if own and device is not None and device.type != "cpu":      # runtimes are then that device's
         m["device"] = str(device)
@@ -124,13 +127,16 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
 
 def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1,
                     seed: int = 0, sampler: str | None = None, noise: bool = False, per_class: int | None = None,
-                    progress: bool = True, chunk: int = 64, pose: str | None = None) -> dict:
+                    progress: bool = True, chunk: int = 64, pose: str | None = None, batched: bool = False) -> dict:
     """Render ``views`` query views of each ``split`` object, let ``method`` answer each, score: the
-    metrics dict described in the module docstring (:func:`score_methods`, one method)."""
+    metrics dict described in the module docstring (:func:`score_methods`, one method; ``batched``: its
+    batched path where the method has one, recorded as ``batched`` in the metrics)."""
     pose = pose or method.poses[0]
+    batched = bool(batched) and _batchable(method)
     rows, failures, records, rs = score_methods({method.name: (method, pose)}, dataset, setup, split, views, seed,
                                                 sampler, noise, per_class, progress, chunk,
-                                                desc=f"evaluate {method.name}/{pose} {dataset.name}/{split}")
+                                                desc=f"evaluate {method.name}/{pose} {dataset.name}/{split}",
+                                                batched=batched)
     rows = rows[method.name]
     if not rows:
         raise BatchError(None, f"{dataset.name}/{split}: no view could be evaluated "
@@ -144,14 +150,21 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
     return {"method": method.name, "pose": pose, "given_class": (method.name, pose) in GIVEN_CLASS,
             "precision": extra["precision"], "rolls": extra["rolls"], "mirror": extra["mirror"], "prior_tau": extra["prior_tau"],
             "class_prior": extra["class_prior"], "ensemble": extra["ensemble"],
-            **({"completion_rule": extra["completion"]} if extra.get("completion") else {}), **out}
+            **({"completion_rule": extra["completion"]} if extra.get("completion") else {}),
+            **({"batched": True} if batched else {}), **out}
 
 
 def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1, seed: int = 0,
                   sampler: str | None = None, noise: bool = False, per_class: int | None = None,
-                  progress: bool = True, chunk: int = 64, desc: str = "evaluate", warm_up: bool = True):
+                  progress: bool = True, chunk: int = 64, desc: str = "evaluate", warm_up: bool = True,
+                  batched: bool = False):
     """The one evaluation loop: every method of ``methods`` ({key: (Method, pose setting)}) answers
     the same query views, each rendered once, in order.
+
+    ``batched``: a method with a ``predict_views`` member (HBEO's one network pass,
+    :meth:`hbeo.evaluation.method.HBEOMethod.predict_views`) answers a chunk's views in one call (the network
+    on a batch, the views marched together on a GPU); its rows are those of the per-query loop, in the same
+    order, each ``ms`` the batch's time shared equally. Methods without it answer one view at a time.
 
     Views come from :meth:`hbeo.render.views.ObjectViews.query_views` with the setup's render
     settings, ``views`` per object, ``seed``, ``noise`` and (if given) ``sampler``: view j of an
@@ -185,34 +198,50 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
     rows, failures = {key: [] for key in methods}, []
     bar = tqdm(total=len(records), desc=desc, disable=not progress)
     warm = not warm_up
+    many = {key for key, (m, _) in methods.items() if batched and _batchable(m)}
     for batch in rendered_chunks(rs, records, split, chunk, failures, bar):
-        for i, rec, v, truth in batch:
-            for j in range(views):
-                depth = v["depth"][j].astype(np.float32)
-                if not (depth > 0).any():
-                    continue          # nothing visible (cannot happen with sane settings; never scored as 0)
-                for key, (m, pose) in methods.items():
-                    query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
-                                 object_size=rs.object_size, pose=pose,
-                                 label_true=classes.index(rec.cls) if (m.name, pose) in GIVEN_CLASS else None)
+        seen = [(rec, v, truth, j) for _, rec, v, truth in batch for j in range(views)
+                if (v["depth"][j] > 0).any()]  # nothing visible: cannot happen with sane settings; never scored as 0
+        answers = {}
+        for key in many:
+            m = methods[key][0]
+            if not warm and seen:                     # the untimed first call
+                m.predict_views(seen[0][1]["depth"][seen[0][3]][None].astype(np.float32), K)
+            depths = np.stack([v["depth"][j] for _, v, _, j in seen]).astype(np.float32) if seen else None
+            answers[key] = iter(m.predict_views(depths, K) if seen else [])
+        for rec, v, truth, j in seen:
+            depth = v["depth"][j].astype(np.float32)
+            for key, (m, pose) in methods.items():
+                query = dict(R_true=v["rotation"][j].astype(np.float64), t_true=v["translation"][j].astype(np.float64),
+                             object_size=rs.object_size, pose=pose,
+                             label_true=classes.index(rec.cls) if (m.name, pose) in GIVEN_CLASS else None)
+                if key in answers:
+                    out = next(answers[key])
+                else:
                     if not warm:
                         m.predict_view(depth, K, rng=np.random.default_rng([seed, 1]), **query)
                     rng = np.random.default_rng([seed, 2, object_key(rec), j])
                     t0 = time.perf_counter()
                     out = m.predict_view(depth, K, rng=rng, **query)
-                    ms = out["ms"] if "ms" in out else (time.perf_counter() - t0) * 1e3
-                    pred = classes[answer_label(out)]
-                    row = {"object": rec.id, "view": j, "class": rec.cls, "pred": pred, "R_true": v["rotation"][j],
-                           "R_pred": out["rotation"], "grid": out["grid"], "truth": truth, "ms": ms}
-                    if "grid_paper" in out:
-                        row["grid_paper"] = out["grid_paper"]
-                    if means is not None:
-                        row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
-                    rows[key].append(row)
-                warm = True
-            bar.update(1)
+                ms = out["ms"] if "ms" in out else (time.perf_counter() - t0) * 1e3
+                pred = classes[answer_label(out)]
+                row = {"object": rec.id, "view": j, "class": rec.cls, "pred": pred, "R_true": v["rotation"][j],
+                       "R_pred": out["rotation"], "grid": out["grid"], "truth": truth, "ms": ms}
+                if "grid_paper" in out:
+                    row["grid_paper"] = out["grid_paper"]
+                if means is not None:
+                    row["mean_pred"], row["mean_true"] = means[pred], means[rec.cls]
+                rows[key].append(row)
+            warm = True
+        bar.update(len(batch))
     bar.close()
     return rows, failures, records, rs
+
+
+def _batchable(method) -> bool:
+    """Whether ``method`` answers a batch of views in one call (:meth:`HBEOMethod.predict_views`)."""
+    f = getattr(method, "predict_views", None)
+    return callable(f) and getattr(method, "batchable", True)
 
 
 def rendered_chunks(rs, records, split: str, chunk: int, failures: list, bar):

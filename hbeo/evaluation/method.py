@@ -134,6 +134,25 @@ class HBEOMethod:
             self._shared.verified[key] = self._verifier.verify(depth, intrinsics, p)
         return self._shared.verified[key]
 
+    @property
+    def batchable(self) -> bool:
+        """Whether :meth:`predict_views` answers as :meth:`predict_view` does: the one network pass (rolls
+        allowed), not verify, not an agreement threshold or a shared prediction."""
+        return self._verifier is None and self._base is None and self._shared is None
+
+    def predict_views(self, depths, intrinsics) -> list[dict]:
+        """Depth images (B, H, W) -> the answers :meth:`predict_view` gives each (pose ``3dof``), from one call of
+        the network on the batch; each ``ms`` is the batch's time over B."""
+        if not self.batchable:
+            raise ValueError("predict_views is HBEO's one network pass: not with verify or a shared prediction")
+        p = self.model.predict(np.asarray(depths, np.float32), intrinsics, rolls=self.rolls)
+        ms = p.timing_ms["total"] / len(p.labels)
+        paper = (self.model.subspace.reconstruct(p.coeffs.astype(np.float32), threshold=0.5)
+                 if self.model.completion.name != "paper" else None)
+        return [{"label": int(p.labels[i]), "probabilities": p.probabilities[i], "rotation": p.rotation[i],
+                 "grid": p.grids[i], "ms": ms, **({"grid_paper": paper[i]} if paper is not None else {})}
+                for i in range(len(p.labels))]
+
     def predict_view(self, depth, intrinsics, R_true=None, t_true=None, object_size: float = 1.0,
                      pose: str = "3dof", label_true=None, rng=None) -> dict:
         if pose != "3dof":

@@ -237,7 +237,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
                   noise: bool = False, per_class: int | None = None, method: str = "hbeo", pose: str | None = None,
                   precision: str = "float32", rolls: int = 1, verify=None, max_steps: int | None = None,
                   progress: bool = True, prior_tau: float = 0.0, members=(), mirror: bool = False,
-                  completion: str | None = None) -> dict:
+                  completion: str | None = None, batched: bool = False) -> dict:
     """``python -m hbeo evaluate``: the metrics of ``method`` (HBEO, or a baseline fitted/trained beside the
     model file when missing) on ``dataset``'s ``split`` (read with the model's profile), written to ``out``
     (JSON); ``split="val"`` also adds a row to the model folder's ``validation.csv``; objects that could not
@@ -247,8 +247,9 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     the metrics' ``class_prior.source`` says so). ``members``: model files averaged with HBEO's
     (:meth:`hbeo.model.inference.HBEO.add_members`; the metrics' ``ensemble`` names them). ``mirror``: HBEO's class
     answer averaged with the mirrored image's (:meth:`hbeo.model.inference.HBEO.set_mirror`). ``completion``: HBEO's
-    completion rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty). Returns the
-    metrics."""
+    completion rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty). ``batched``:
+    HBEO's one pass answers each chunk of views in one network call (the same answers; not with ``verify``).
+    Returns the metrics."""
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_file, check_outputs
     check_outputs({"--out": out}, {"--model": model_path, **{f"--ensemble {f}": f for f in members}})
@@ -256,6 +257,8 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
         raise ValueError(f"--ensemble averages HBEO models; method {method!r} is not HBEO")
     if mirror and method != "hbeo":
         raise ValueError(f"--mirror averages HBEO's class answer; method {method!r} is not HBEO")
+    if batched and (method != "hbeo" or verify is not None):
+        raise ValueError("--batch is HBEO's one network pass: not with --verify or a baseline")
     if completion is not None and method != "hbeo":
         raise ValueError(f"--completion is HBEO's completion rule; method {method!r} is not HBEO")
     check_rolls(rolls)                                  # before the model is read (and before torch is imported)
@@ -273,7 +276,8 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     model.set_mirror(mirror).set_completion(completion)
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
-                             per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify)
+                             per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify,
+                             batched=batched)
     metrics["model"] = str(model_path)
     with atomic_file(out, "w") as f:
         f.write(json_text(metrics, indent=2))

@@ -94,6 +94,9 @@ class TrainConfig:
     num_workers: int = 0
     device: str = "auto"            #: "auto", "cpu" or "cuda"
     amp: bool = True                #: mixed precision (CUDA only)
+    #: the autocast type on CUDA: ``bfloat16`` (float32's range: no gradient scaler, nothing read back from the
+    #: device) or ``float16`` (with torch's GradScaler)
+    amp_dtype: str = "bfloat16"
     threads: int | None = None      #: torch threads on a CPU: None = torch's setting, 0 = half the cores
     progress: bool = True
     checkpoint_every: int | None = None   #: also write the checkpoint every this many steps (None: per epoch only)
@@ -152,6 +155,34 @@ def lr_at(step: int, total: int, cfg: TrainConfig) -> float:
         return cfg.lr * (step + 1) / cfg.warmup_steps
     progress = min(1.0, (step - cfg.warmup_steps) / max(1, total - cfg.warmup_steps))
     return cfg.lr * (cfg.min_lr_ratio + (1 - cfg.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def train_step(task, net, module, batch: dict, opt, scaler, lr: float, grad_clip: float, amp_dtype=None):
+    """One optimizer step of the loop on ``batch`` (already on the device): the learning rate set, the loss under
+    autocast to ``amp_dtype`` (None: none), backward through ``scaler`` (a disabled one for bfloat16 or none), the
+    gradients clipped to ``grad_clip``, the step. ``net`` is what runs the batch (``module`` or its
+    data-parallel wrapper), ``module`` whose parameters are clipped. Reads nothing back from the device; returns
+    the loss (a device tensor)."""
+    for g in opt.param_groups:
+        g["lr"] = lr
+    with torch.autocast(batch_device(batch).type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
+        loss, _ = task.loss(net, batch)
+    opt.zero_grad(set_to_none=True)
+    scaler.scale(loss).backward()
+    scaler.unscale_(opt)
+    torch.nn.utils.clip_grad_norm_(module.parameters(), grad_clip)
+    scaler.step(opt)
+    scaler.update()
+    return loss
+
+
+def batch_device(batch: dict) -> torch.device:
+    """The device of a batch's first tensor."""
+    return next(v.device for v in batch.values() if torch.is_tensor(v))
+
+
+#: on a GPU the progress bar reads the loss (a host wait) every this many steps only
+BAR_EVERY = 50
 
 
 def optimizer(params, cfg: TrainConfig, device: torch.device) -> torch.optim.AdamW:
@@ -383,7 +414,12 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
         seed_everything(cfg.seed * 1_000 + w.rank)
     opt = optimizer(module.parameters(), cfg, device)
     use_amp = cfg.amp and device.type == "cuda"
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    if cfg.amp_dtype not in ("bfloat16", "float16"):
+        raise ValueError(f"amp_dtype must be bfloat16 or float16, got {cfg.amp_dtype!r}")
+    amp_dtype = torch.bfloat16 if cfg.amp_dtype == "bfloat16" else torch.float16
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp and amp_dtype == torch.float16)
+    if device.type == "cuda":             # fixed input sizes: let cuDNN pick its fastest kernels once
+        torch.backends.cudnn.benchmark = True
     total_steps = len(data_loader(train_set, cfg, 0, w)) * cfg.epochs
     if cfg.max_steps is not None:
         total_steps = min(total_steps, cfg.max_steps)
@@ -428,22 +464,14 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
         t0 = time.perf_counter() - elapsed
         for batch in bar:
             batch = _to(batch, device)
-            for g in opt.param_groups:
-                g["lr"] = lr_at(step, total_steps, cfg)
-            with torch.autocast(device.type, enabled=use_amp):
-                loss, _ = task.loss(net, batch)
-            opt.zero_grad(set_to_none=True)
-            scaler.scale(loss).backward()
-            scaler.unscale_(opt)
-            torch.nn.utils.clip_grad_norm_(module.parameters(), cfg.grad_clip)
-            scaler.step(opt)
-            scaler.update()
+            loss = train_step(task, net, module, batch, opt, scaler, lr_at(step, total_steps, cfg), cfg.grad_clip,
+                              amp_dtype if use_amp else None)
             step += 1
             done += 1
             n = _batch_len(batch)
             seen += n
             run_loss += loss.detach().double() * n
-            if not bar.disable:
+            if not bar.disable and (device.type != "cuda" or step % BAR_EVERY == 0):   # .item() waits on a GPU
                 bar.set_postfix({"loss": f"{loss.item():.3f}",
                                  f"{task.unit}_s": f"{seen / (time.perf_counter() - t0):.0f}"})
             if stop_after_step is not None and step >= stop_after_step:

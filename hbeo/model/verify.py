@@ -268,7 +268,10 @@ class Verifier:
         coeffs = np.zeros((len(Rs), len(top), self.k))
         ts = np.repeat(np.asarray(pred.translation[i], np.float64)[None], len(Rs), axis=0)
         if cfg.refine_translation:
-            pts = surface_points(pred.grids[i], size)
+            # the network's shape at the paper's 0.5, whatever the model's completion rule: the rule changes the
+            # answered grid only, not the search
+            net_shape = model.subspace.reconstruct(np.asarray(pred.coeffs[i], np.float32)[None], threshold=0.5)[0]
+            pts = surface_points(net_shape, size)
             ts = np.stack([align_translation(depth, R, ts[0], pts, intrinsics) for R in Rs])
         with one_blas_thread():
             for r in range(len(Rs)):                         # each rotation carved at its own translation

@@ -180,6 +180,7 @@ def deviations(man: dict, run=None) -> list[str]:
         f"{p.get('conv_channels')}, fully connected {p.get('fc')}); at 320×240 the paper's design has about 15 M. "
         f"The layer pattern (four strided convolutions, three shared fully connected layers, three heads) is the paper's.",
         recipe_line + ". 10 % of each class's training objects are held out for validation (the paper trains on all).",
+        _completion_line(run),
         "- **HBEO + verify** (rows marked *ours*) adds test-time roll averaging and a check of the network's top "
         "rotation hypotheses against the depth image (`hbeo.model.verify`); it is not in the paper and is "
         "reported beside, never instead of, HBEO.",
@@ -204,6 +205,25 @@ def deviations(man: dict, run=None) -> list[str]:
         "- **Runtime** is measured on this run's hardware (above), the paper's on a 4-core CPU with a GTX 1070 and "
         "Matlab baselines; ratios between methods are the comparable figures.",
     ]
+
+
+def _completion_line(run) -> str:
+    """The completion rule the run's HBEO evaluations used (the first line of its ``eval_hbeo_3dof.json``'s
+    ``completion_rule``, absent: the paper's) and HBEO's default rule."""
+    from hbeo.model.completion_rule import NONEMPTY, of_record
+    path = RunDir.of(run).evaluation("hbeo", "3dof") if run is not None else None
+    used = of_record(json.loads(path.read_text()).get("completion_rule")) if path and path.exists() else None
+    head = ("- **Completion rule.** The paper keeps the voxels whose back-projection reaches 0.5, which can leave a "
+            "completion empty. HBEO's default completes never empty (`hbeo.model.completion_rule`: back-projection "
+            f">= {NONEMPTY.threshold:g}, a threshold chosen on validation, else the predicted class's mean-shape "
+            "occupancy in top voxels); `--completion paper` gives the paper's rule, and an evaluation under the default "
+            "scores the paper's rule beside (`completion_paper`). ")
+    if used is None:
+        return head + "This run's HBEO evaluation file is missing."
+    if used.name == "paper":
+        return head + ("This run's HBEO evaluations used the paper's rule (made before the default changed); the "
+                       "never-empty rule on the same queries is in the completion section above, where computed.")
+    return head + "This run's HBEO evaluations used the never-empty rule; the paper's is beside in each file."
 
 
 def check_finished_run(run) -> RunDir:
