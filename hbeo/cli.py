@@ -81,7 +81,7 @@ def _image_size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected W,H (two whole numbers of pixels), got {text!r}") from None
     if not (8 <= w <= 4096 and 8 <= h <= 4096):
-        raise argparse.ArgumentTypeError(f"expected 8 to 4096 pixels each, got {w}x{h}")
+        raise argparse.ArgumentTypeError(f"expected 8 to 4096 pixels each, got {text!r}")
     return (w, h)
 
 

@@ -118,3 +118,16 @@ def test_workers_0_means_one_process_per_usable_core(command, monkeypatch, tmp_p
     monkeypatch.setattr(Run, "voxelize", lambda self, workers=0: seen.append(workers) or [])
     assert cli.main([command, "--profile", "ci", "--workers", "0", "--out", str(tmp_path / "run")]) == 0
     assert seen == [3]
+
+
+def test_train_image_size_is_two_pixel_counts_and_scales_the_camera():
+    from hbeo.cli import _image_size
+    from hbeo.render.views import RenderSettings
+    assert _image_size("120,90") == (120, 90) and _image_size("160x120") == (160, 120)
+    for bad in ("120", "a,b", "4,4", "120,90,1", "5000,90"):
+        out = run("train", "--image-size", bad)
+        assert out.returncode == 2 and "--image-size: expected" in out.stderr and bad in out.stderr, bad
+    s = RenderSettings.from_profile("cpu", image_size=(160, 120))
+    K, K0 = s.intrinsics, RenderSettings.from_profile("cpu").intrinsics
+    assert (s.image_size, (K.width, K.height)) == ((160, 120), (160, 120))
+    assert K.fx == 2 * K0.fx and K.fy == 2 * K0.fy               # the same field of view, twice the pixels

@@ -93,7 +93,8 @@ def markdown(table: pd.DataFrame, run_rel: str = "RUN") -> list[str]:
     lines = [f"Regenerate: `{COMMAND.format(run=run_rel)}` (`hbeo.evaluation.decompose`). e' in voxels; "
              "95 % bootstrap intervals over objects; every row scores the same paired queries. The metric gives an "
              "empty completion the grid's diagonal as its distance field everywhere (`hbeo.subspace.metrics`), so "
-             f"each of HBEO's {n_empty} empty test completions costs several thousand e'." + agree, "",
+             + (f"each of HBEO's {n_empty} empty test completions costs" if n_empty != 1 else
+              "HBEO's one empty test completion costs") + " several thousand e'." + agree, "",
              "**Test queries** (the threshold row and the never-empty row are deviations from the paper, chosen on "
              "validation; the paper's 0.5 beside them):", "",
              _block(t, "completion", {**edt_cols, "accuracy": lambda r: "–" if pd.isna(r.accuracy) else
