@@ -24,7 +24,8 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    model for the number of steps that fit (the schedule ends there, as with ``--max-steps``), keeping
    ``--eval-reserve`` seconds for the evaluation; ``lease.json``'s ``budget`` says what was measured and the
    steps chosen (its ``steps``: those trained, fewer when the profile plans fewer). A restarted worker keeps the step count it chose first. The
-   evaluation runs HBEO's network on the GPU (``cuda`` when there is one; the metrics' ``device`` says so).
+   evaluation runs HBEO's network on the GPU (``cuda`` when there is one; the metrics' ``device`` says so), a chunk
+   of views per network call (``batched``: the same answers as one view at a time).
 2. It waits for the worker until it finishes or ``--wait`` runs out (then it says so: call again, on the
    same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
@@ -235,7 +236,7 @@ def worker(args) -> int:
         metrics = protocol.evaluate_validation(model, run, progress=False)
         atomic_text(run.path / VAL_EVAL, json_text(metrics, indent=1))
     else:
-        metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False, device=device)
+        metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False, device=device, batched=True)
     state["stages"]["evaluate_s"] = time.perf_counter() - t1
     ck = load_checkpoint(ckpt) if ckpt.exists() else {}
     prof = run.profile

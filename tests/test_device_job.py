@@ -52,6 +52,8 @@ def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_u
     files = sorted(out.iterdir())
     assert len(files) <= 8 and all(f.stat().st_size <= 16 * 2**20 for f in files)
     assert {"lease.json", "eval_hbeo_3dof.json", "train_log.csv", "provenance.json", "job.log"} <= {f.name for f in files}
+    ev = json.loads((out / "eval_hbeo_3dof.json").read_text())       # a chunk of views per network call
+    assert ev["batched"] is True and ev["request"]["batched"] is True and ev["completion"]["empty"] == 0
     joined = gzip.decompress(b"".join(p.read_bytes() for p in sorted(out.glob("model.hbeo.gz.part*"))))
     assert joined == (run / "model.hbeo").read_bytes()
     assert lease["weights_rounded_to"] == "bfloat16" and lease["unrounded_model_sha256"] != lease["model_sha256"]

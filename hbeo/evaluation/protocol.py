@@ -96,16 +96,18 @@ def _sha(path: Path) -> str | None:
     return sha256_file(path)[:16] if path.exists() else None
 
 
-def request(run, method: str, pose: str, sampler: str | None = None) -> dict:
+def request(run, method: str, pose: str, sampler: str | None = None, batched: bool = False) -> dict:
     """What decides an evaluation's result (its cache key): the setting, the reading of the view
     protocol (``sampler``; None: the model's own), the objects and views, the seed, the code version,
-    the dataset's fingerprint and the model and baseline files' hashes. ``run``: a :class:`hbeo.run.Run`."""
+    the dataset's fingerprint and the model and baseline files' hashes, and ``batched`` where true (the same
+    answers, per-query times shared over a batch). ``run``: a :class:`hbeo.run.Run`."""
     per_class, views = eval_plan(run.profile, method, pose)
     base = method.split("-")[0]
     return {"method": method, "pose": pose, "sampler": sampler, "dataset": run.dataset.name,
             "dataset_fingerprint": run.dataset.fingerprint(), "per_class": per_class, "views": views, "seed": SEED,
             "code": code_version(), "model_sha256": _sha(run.dir.model),
-            "baseline_sha256": None if base == "hbeo" else _sha(run.dir.baseline(base))}
+            "baseline_sha256": None if base == "hbeo" else _sha(run.dir.baseline(base)),
+            **({"batched": True} if batched else {})}
 
 
 def training_sampler(model) -> str:
@@ -117,7 +119,7 @@ def training_sampler(model) -> str:
 
 
 def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: bool = True,
-               sampler: str | None = None, device: str | None = None) -> dict:
+               sampler: str | None = None, device: str | None = None, batched: bool = False) -> dict:
     """Metrics of ``method``/``pose`` on the run's paired test views (:func:`eval_plan`,
     :func:`hbeo.evaluation.evaluate.evaluate_model`), read from the run's ``eval_<method>_<pose>.json``
     when that file answers the same :func:`request`, else computed and written there (atomically).
@@ -128,7 +130,9 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
     model's own training sampler (:func:`training_sampler`): the file above; another one: the views
     drawn by that sampler from the same per-view streams, in ``eval_<method>_<pose>_<sampler>.json``
     (:meth:`hbeo.rundir.RunDir.evaluation`). ``device``: where HBEO's network runs when computed (None: the
-    CPU; :meth:`hbeo.model.inference.HBEO.to`; the device job's ``cuda``)."""
+    CPU; :meth:`hbeo.model.inference.HBEO.to`; the device job's ``cuda``). ``batched``: HBEO's one pass on a
+    chunk of views per network call (the same answers; the device job's, where per-query calls would idle a GPU;
+    the notebooks keep per-query calls, whose times Table II reports)."""
     from hbeo.baselines.methods import check_method
     from hbeo.evaluation.evaluate import evaluate_model
     verified = method == VERIFIED
@@ -144,7 +148,7 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
     if path.exists():
         try:
             old = json.loads(path.read_text())
-            if old.get("request") == request(run, method, pose, sampler):
+            if old.get("request") == request(run, method, pose, sampler, batched):
                 return old
         except (OSError, ValueError):
             pass
@@ -158,10 +162,11 @@ def evaluation(run, method: str = "hbeo", pose: str | None = None, progress: boo
         verify, rolls = VerifyConfig(), VERIFIED_ROLLS if model.net.cfg.rotation == "bins" else 1
     per_class, views = eval_plan(run.profile, method, pose)
     m = evaluate_model(model, run.dataset, split="test", views=views, seed=SEED, per_class=per_class,
-                       progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify, sampler=sampler)
+                       progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify, sampler=sampler,
+                       batched=batched and method == "hbeo")
     if verified:
         m["method"] = VERIFIED
-    m["request"] = request(run, method, pose, sampler)
+    m["request"] = request(run, method, pose, sampler, batched and method == "hbeo")
     atomic_text(path, json_text(m, indent=1))
     return m
 
