@@ -155,7 +155,7 @@ def cmd_train(args) -> int:
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead",
-            "augment_mirror", "image_size")  # TrainOptions' names
+            "augment_mirror", "image_size", "batch_size", "lr", "warmup_steps")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
                         **{k: getattr(args, k) for k in same})
@@ -380,6 +380,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-size", type=_image_size, metavar="W,H",
                    help="training image size in pixels, the camera scaled to it (default: the profile's; the model "
                         "is evaluated at its own size)")
+    p.add_argument("--batch-size", type=COUNT, metavar="N", help="images per optimizer step (default: the profile's)")
+    p.add_argument("--lr", type=POSITIVE, help="peak learning rate of AdamW (default: the profile's)")
+    p.add_argument("--warmup-steps", type=COUNT, metavar="N",
+                   help="steps of the learning rate's linear warm-up (default: 100, or one epoch when shorter)")
     p.add_argument("--data", choices=("memory", "shards", "stream"),
                    help="training images: the rendered set in memory, the rendered set read shard by shard, or "
                         "rendered on the fly with a fresh pose per object per pass (default: the profile's)")

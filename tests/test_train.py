@@ -219,3 +219,14 @@ def test_the_gpu_step_never_waits_for_the_device():
     finally:
         torch.cuda.set_sync_debug_mode("default")
     assert torch.isfinite(loss).item()
+
+
+def test_a_cpu_checkpoint_records_no_autocast_type_so_older_ones_resume(tmp_path):
+    """Autocast's type matters on CUDA only: a CPU run's checkpoint does not record it, so a checkpoint written
+    before the setting existed (without the key) resumes."""
+    tc = TrainConfig(epochs=2, batch_size=8, lr=1e-2, warmup_steps=2, progress=False)
+    train(HBEONetTask(CFG), Toy(16, 0), None, tmp_path, tc, stop_after_epoch=1)
+    ck = load_checkpoint(tmp_path / CHECKPOINT)
+    assert "amp_dtype" not in ck["settings"]["train"] and ck["epoch"] == 0
+    train(HBEONetTask(CFG), Toy(16, 0), None, tmp_path, tc)              # resumes: the same settings
+    assert load_checkpoint(tmp_path / CHECKPOINT)["epoch"] == 1

@@ -145,7 +145,9 @@ class TrainOptions:
     CPU); it changes the speed, not the images; augment_mirror: mirror each training view with probability 1/2,
     its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.mirror.MirrorAugment`);
     image_size: (width, height) of the training images (None: the profile's), the camera
-    :meth:`~hbeo.conventions.Intrinsics.kinect` scaled to it: the same views at another resolution."""
+    :meth:`~hbeo.conventions.Intrinsics.kinect` scaled to it: the same views at another resolution;
+    batch_size / lr: the optimizer's batch and peak learning rate (None: the profile's); warmup_steps: the linear
+    warm-up's steps (None: 100, or one epoch when shorter)."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -169,6 +171,9 @@ class TrainOptions:
     render_ahead: int | None = None
     augment_mirror: bool = False
     image_size: tuple[int, int] | None = None
+    batch_size: int | None = None
+    lr: float | None = None
+    warmup_steps: int | None = None
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
@@ -275,8 +280,10 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
     if balance == "sampler":                # unbalanced runs keep the settings (and checkpoints) they had
         how["class_balance"] = "sampler"
         train_set = ClassBalanced(data.train, data.train_labels)
-    tc = TrainConfig(epochs=opts.epochs or prof.recipe.epochs, batch_size=prof.recipe.batch_size, lr=prof.recipe.lr,
-                     seed=opts.seed or 0, progress=progress, warmup_steps=min(100, max(1, len(data.train) // prof.recipe.batch_size)),
+    batch = opts.batch_size or prof.recipe.batch_size
+    warmup = opts.warmup_steps or min(100, max(1, len(data.train) // batch))
+    tc = TrainConfig(epochs=opts.epochs or prof.recipe.epochs, batch_size=batch, lr=opts.lr or prof.recipe.lr,
+                     seed=opts.seed or 0, progress=progress, warmup_steps=warmup,
                      max_steps=opts.max_steps, data=how, checkpoint_every=opts.checkpoint_every,
                      num_workers=opts.loader_workers)
     task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None,

@@ -407,6 +407,8 @@ def _train(task, train_set, val_set, out, cfg, device, w, stop_after_epoch, stop
     train_settings = {k: v for k, v in cfg.to_dict().items() if k not in ENVIRONMENT}
     if w.parallel:                        # the schedule depends on it; a lone process keeps its old settings
         train_settings["world_size"] = w.size
+    if torch.device(device).type != "cuda" or not cfg.amp:   # autocast runs on CUDA only: elsewhere its type is
+        train_settings.pop("amp_dtype", None)                 # moot, and checkpoints made before it existed resume
     settings = _plain({"model": task.config(), "train": train_settings})
     seed_everything(cfg.seed)
     module = task.build().to(device)
