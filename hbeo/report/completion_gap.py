@@ -18,6 +18,7 @@ import os
 import numpy as np
 import pandas as pd
 
+from hbeo.model.completion_rule import NONEMPTY_THRESHOLD
 from hbeo.report import tables as T
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
@@ -102,7 +103,10 @@ def markdown(table: pd.DataFrame, run_rel: str = "RUN") -> list[str]:
              f"**Validation queries** (the threshold scan; chosen by lowest mean e': **{chosen:g}**"
              + (", the edge of the scanned range, which was fixed with the rule before the scan ran: a threshold "
                 "beyond it was not tried" if chosen in (val["threshold"].iloc[:-1].min(), val["threshold"].iloc[:-1].max())
-                and len(val) > 2 else "") + "):", "",
+                and len(val) > 2 else "")
+             + ("" if chosen == NONEMPTY_THRESHOLD else
+                f"; HBEO's default never-empty rule keeps {NONEMPTY_THRESHOLD:g}, chosen the same way on the ModelNet10 "
+                "reference run's validation queries, and the rows above use this run's own choice") + "):", "",
              T.to_markdown(pd.DataFrame({"threshold": [f"{x:g}" for x in val["threshold"]],
                                          "": val["row"].to_numpy(), "n": [str(int(x)) for x in val["n"]],
                                          "mean e' [95 %]": [_ci(r) for r in val.itertuples()],
