@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import traceback
 
 from hbeo import config
+from hbeo.cli_args import (COUNT, FRACTION, NONNEG, OPEN_FRACTION, POSITIVE, image_size as _image_size,
+                           join_list_values as _join_list_values, local_workers as _local_workers)
 from hbeo.errors import HBEOError, os_error_line
 from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
 from hbeo.rundir import DEFAULT_MODEL
@@ -20,37 +21,6 @@ _SAMPLER_HELP = "; ".join(f"{k}: {v}" for k, v in SAMPLER_HELP.items()).replace(
 
 # --------------------------------------------------------------------------- refusing what means nothing
 
-def _number(kind, lo=None, hi=None, lo_open=False, hi_open=False):
-    """An argparse ``type=``: ``kind`` (int or float) finite and in [lo, hi] (open ends where asked); the
-    error (argparse puts the option's name before it) says what it takes and what it got."""
-    name = "a whole number" if kind is int else "a number"
-    rng = " and ".join(x for x in (lo is not None and f"{'>' if lo_open else '>='} {lo}",
-                                   hi is not None and f"{'<' if hi_open else '<='} {hi}") if x)
-
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except ValueError:
-            v = None
-        ok = v is not None and math.isfinite(v) and (lo is None or (v > lo if lo_open else v >= lo)) \
-            and (hi is None or (v < hi if hi_open else v <= hi))
-        if not ok:
-            raise argparse.ArgumentTypeError(f"expected {name}{' ' + rng if rng else ''}, got {text!r}")
-        return v
-    parse.__name__ = name
-    return parse
-
-
-COUNT = _number(int, 1)                             #: epochs, views, rolls, steps, objects: at least one
-NONNEG = _number(int, 0)                            #: workers, seeds
-POSITIVE = _number(float, 0, lo_open=True)          #: distances, scales
-FRACTION = _number(float, 0, 1, lo_open=True)       #: (0, 1]
-OPEN_FRACTION = _number(float, 0, 1, True, True)    #: (0, 1)
-#: options whose value may start with "-" (a list of numbers): joined to it before parsing, so a
-#: negative first number reaches the option's own check instead of argparse's usage text
-_LIST_OPTIONS = ("--intrinsics", "--loss-weights", "--fc", "--verify-set")
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse with usage errors as one line, ``error: OPTION: problem (see ... --help)``, exit 2."""
 
@@ -59,42 +29,8 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def _local_workers(text: str) -> int:
-    """An argparse ``type=`` for ``--workers``: a whole number >= 0, 0 meaning one process per core this
-    process may run on (:func:`hbeo.limits.usable_cores`). Not given: None, the profile's count."""
-    n = NONNEG(text)
-    if n == 0:
-        from hbeo.limits import usable_cores
-        return usable_cores()
-    return n
-
-
 #: the --workers help of the commands that start local processes
 _WORKERS_HELP = "local processes (default: the profile's; 0: one per core this process may use)"
-
-
-def _image_size(text: str) -> tuple[int, int]:
-    """An argparse ``type=`` for ``--image-size W,H``: two whole numbers, 8 to 4096 pixels each."""
-    parts = text.replace("x", ",").split(",")
-    try:
-        w, h = (int(p) for p in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected W,H (two whole numbers of pixels), got {text!r}") from None
-    if not (8 <= w <= 4096 and 8 <= h <= 4096):
-        raise argparse.ArgumentTypeError(f"expected 8 to 4096 pixels each, got {text!r}")
-    return (w, h)
-
-
-def _join_list_values(argv: list[str]) -> list[str]:
-    out, i = [], 0
-    while i < len(argv):
-        if argv[i] in _LIST_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-"):
-            out.append(f"{argv[i]}={argv[i + 1]}")
-            i += 2
-        else:
-            out.append(argv[i])
-            i += 1
-    return out
 
 
 # --------------------------------------------------------------------------- the one error boundary
