@@ -128,9 +128,10 @@ def test_report_seeds_on_the_command_line(three, tmp_path, capsys):
     assert cli.main(["report", "--seeds", str(three[0]), str(tmp_path / "cpu")]) == 2
     err = capsys.readouterr().err
     assert "manifest.json: profile cpu" in err and err.count("\n") == 1
-    with pytest.raises(SystemExit) as e:                  # --run or --seeds, not both, not neither
+    with pytest.raises(SystemExit) as e:                  # one of --run, --seeds, --completion-decomposition
         cli.main(["report"])
-    assert e.value.code == 2 and "one of the arguments --run --seeds is required" in capsys.readouterr().err
+    assert e.value.code == 2 and "one of the arguments --run --seeds --completion-decomposition is required" in \
+        capsys.readouterr().err
 
 
 def _claims_runs(tmp_path):
