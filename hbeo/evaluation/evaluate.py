@@ -323,8 +323,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
     raw = geodesic_deg(Rp, Rt)
     sym = np.array([symmetric_pose_error_deg(p, t, UP_SYMMETRY.get(c, 1)) for p, t, c in zip(Rp, Rt, cls)])
     truth, pred = np.stack([r["truth"] for r in rows]), np.stack([r["grid"] for r in rows])
-    edt, nai, io = edt_error(truth, pred), naive_error(truth, pred), iou(truth, pred)
-    empty = pred.reshape(len(pred), -1).sum(1) == 0
+    edt, nai, io, empty = _scores(truth, pred)
     per = {}
     for c in classes:
         m = cls == c
@@ -344,8 +343,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
             "pose_error_deg": {"mean": float(raw.mean()), "median": float(np.median(raw)),
                                "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),
                                "within_30": float((raw < 30).mean()), "within_30_sym": float((sym < 30).mean())},
-            "completion": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
-                           "empty_fraction": float(empty.mean()), "empty": int(empty.sum())},
+            "completion": _means(edt, nai, io, empty),
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
                            "median_per_query": float(np.median([r["ms"] for r in rows]))},
             "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
@@ -363,13 +361,21 @@ def _paper_rule(rows: list[dict], truth: np.ndarray) -> dict:
     under another completion rule), else ``{}``."""
     if not rows or not all("grid_paper" in r for r in rows):
         return {}
-    g = np.stack([r["grid_paper"] for r in rows])
-    edt, nai, io = edt_error(truth, g), naive_error(truth, g), iou(truth, g)
-    empty = g.reshape(len(g), -1).sum(1) == 0
-    return {"completion_paper": {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
-                                 "empty_fraction": float(empty.mean()), "empty": int(empty.sum()),
+    edt, nai, io, empty = _scores(truth, np.stack([r["grid_paper"] for r in rows]))
+    return {"completion_paper": {**_means(edt, nai, io, empty),
                                  "per_query": {"edt": edt.round(6).tolist(), "iou": io.round(6).tolist(),
                                                "empty": empty.tolist()}}}
+
+
+def _scores(truth: np.ndarray, pred: np.ndarray):
+    """Per-query e', naive e, IoU and emptiness (n,) each of completions ``pred`` against ``truth``."""
+    return edt_error(truth, pred), naive_error(truth, pred), iou(truth, pred), pred.reshape(len(pred), -1).sum(1) == 0
+
+
+def _means(edt, nai, io, empty) -> dict:
+    """A ``completion`` block: the means, the share and the count of empty completions."""
+    return {"edt": float(edt.mean()), "naive": float(nai.mean()), "iou": float(io.mean()),
+            "empty_fraction": float(empty.mean()), "empty": int(empty.sum())}
 
 
 def _baseline(rows: list[dict], truth: np.ndarray) -> dict:

@@ -147,8 +147,7 @@ class HBEOMethod:
             raise ValueError("predict_views is HBEO's one network pass: not with verify or a shared prediction")
         p = self.model.predict(np.asarray(depths, np.float32), intrinsics, rolls=self.rolls)
         ms = p.timing_ms["total"] / len(p.labels)
-        paper = (self.model.subspace.reconstruct(p.coeffs.astype(np.float32), threshold=0.5)
-                 if self.model.completion.name != "paper" else None)
+        paper = self.model.paper_grids(p.coeffs) if self.model.completion.name != "paper" else None
         return [{"label": int(p.labels[i]), "probabilities": p.probabilities[i], "rotation": p.rotation[i],
                  "grid": p.grids[i], "ms": ms, **({"grid_paper": paper[i]} if paper is not None else {})}
                 for i in range(len(p.labels))]
@@ -161,7 +160,7 @@ class HBEOMethod:
         own = {"label": int(p.labels[0]), "probabilities": p.probabilities[0], "rotation": p.rotation[0],
                "grid": p.grids[0], "ms": p.timing_ms["total"]}
         if self.model.completion.name != "paper":      # the paper's rule on the same coefficients, scored beside
-            own["grid_paper"] = self.model.subspace.reconstruct(p.coeffs[:1].astype(np.float32), threshold=0.5)[0]
+            own["grid_paper"] = self.model.paper_grids(p.coeffs[:1])[0]
         if self._base is not None:
             base = self._base.predict_view(depth, intrinsics, pose=pose)
             return base if base["agreement"] >= self.min_agreement else {**own, "ms": base["ms"]}

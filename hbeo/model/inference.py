@@ -154,6 +154,11 @@ class HBEO:
                                             self._occupancy[np.asarray(labels, np.int64)])
         return self.subspace.reconstruct(fields, threshold=self.completion.threshold)
 
+    def paper_grids(self, coeffs) -> np.ndarray:
+        """Coefficients (B, k) -> bool grids (B, 30, 30, 30) under the paper's rule (back-projection >= 0.5),
+        whatever the model's own: the grid scored beside, and the shape verify searches with."""
+        return self.subspace.reconstruct(np.asarray(coeffs, np.float32), threshold=0.5)
+
     def set_mirror(self, mirror: bool) -> "HBEO":
         """Test-time mirror averaging of the class answer; returns self. With ``mirror``, :meth:`predict`
         also runs the network on each (rolled) input mirrored left-right about the principal point

@@ -270,8 +270,7 @@ class Verifier:
         if cfg.refine_translation:
             # the network's shape at the paper's 0.5, whatever the model's completion rule: the rule changes the
             # answered grid only, not the search
-            net_shape = model.subspace.reconstruct(np.asarray(pred.coeffs[i], np.float32)[None], threshold=0.5)[0]
-            pts = surface_points(net_shape, size)
+            pts = surface_points(model.paper_grids(pred.coeffs[i][None])[0], size)
             ts = np.stack([align_translation(depth, R, ts[0], pts, intrinsics) for R in Rs])
         with one_blas_thread():
             for r in range(len(Rs)):                         # each rotation carved at its own translation
@@ -300,7 +299,7 @@ class Verifier:
             out.update(probabilities=np.asarray(pred.probabilities[i], np.float64), label=int(pred.labels[i]),
                        rotation=pred.rotation[i], translation=pred.translation[i],
                        coeffs=np.asarray(pred.coeffs[i], np.float32), grid=pred.grids[i])
-            out["grid_paper"] = model.subspace.reconstruct(out["coeffs"][None], threshold=0.5)[0]
+            out["grid_paper"] = model.paper_grids(out["coeffs"][None])[0]
         else:                                            # the model's completion rule (the agreement used 0.5's)
             out["grid_paper"] = grid
             out["grid"] = model.complete(o[None], [out["label"]])[0]
