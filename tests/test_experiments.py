@@ -10,7 +10,7 @@ import pytest
 
 from hbeo.errors import DataError, HBEOError
 from hbeo.report import experiments as ex
-from hbeo.report.model_table import model_table, targets_table
+from hbeo.report.model_table import BEGIN, END, model_table, targets_table
 from hbeo.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,6 +134,30 @@ def test_a_pending_spec_has_no_row(tmp_path):
     exps = ex.load_all(root)
     assert [e.status for e in exps] == ["pending"] and ex.model_rows(exps, "ci-tiny") == []
     assert "pending" in ex.listing(root) and "MISSING" in ex.listing(root)
+
+
+def test_a_pending_spec_is_listed_with_its_rule_in_the_readme_block(tmp_path):
+    root, path = _specs(tmp_path, GOOD.replace('"not chosen"', '"pending"'))
+    (e,) = ex.load_all(root)
+    table = ex.pending_table([e], "ci-tiny")
+    assert table.count("\n") == 3 and f"`{e.name}`" in table and " ".join(e.rule.split()) in table
+    assert "python -m hbeo experiment run tiny" in table
+    assert ex.pending_table([e], "another-run") == "Every registered row has run.\n"
+    readme = tmp_path / "doc.md"
+    readme.write_text(f"a\n{BEGIN}\n{END}\n{ex.PENDING_BEGIN}\nold\n{ex.PENDING_END}\nb\n")
+    ex.write_table(root, readme)
+    assert f"{ex.PENDING_BEGIN}\n{table}{ex.PENDING_END}" in readme.read_text() and "old" not in readme.read_text()
+
+
+def test_a_pipe_in_a_rule_does_not_split_its_cell():
+    assert ex._cell("a | b\n  c") == "a \\| b c"
+
+
+def test_the_docs_list_the_pending_rows():
+    text = (ROOT / "docs" / "experiments.md").read_text()
+    block = text[text.index(ex.PENDING_BEGIN) + len(ex.PENDING_BEGIN) + 1:text.index(ex.PENDING_END)]
+    assert block == ex.pending_table(ex.load_all(), RUN.name), \
+        "docs/experiments.md's pending rows are stale: python -m hbeo experiment table --readme docs/experiments.md"
 
 
 @pytest.mark.parametrize("change,problem", [
