@@ -23,6 +23,8 @@ time limit still returns what it measured. A stage that fails records its error 
   the loop's AdamW) per precision (``float32``; ``amp-float16`` with a GradScaler, the loop's; ``amp-bfloat16``)
   and batch (``--net-batches``), channels-last, on random depth; code of ``bench_gpu_step.py``.
 - ``both``: the fused marcher's batch then the ``amp-float16`` step on it, per network batch.
+- ``poses``: the host's time for a march's poses (``--pose-images``), drawn in this process and ahead in worker
+  processes (``--pose-workers``), what the training loop pays before each march (``bench_draw_ahead.py``).
 
 On the lent GPU machine (Python 3.12, torch 2.11 + CUDA with its triton 3.6, no trimesh; hbeo not installed),
 with ``.device/`` made here by ``bash maintainer/device_prepare.sh`` (the grid file and the missing wheels) carried
@@ -49,7 +51,7 @@ import sys
 import time
 from pathlib import Path
 
-STAGES = ("setup", "compile", "agreement", "render", "tiles", "network", "both")
+STAGES = ("setup", "compile", "agreement", "render", "tiles", "network", "both", "poses")
 PRECISIONS = ("float32", "amp-float16", "amp-bfloat16")
 TILES = [(16, 8, 1), (8, 8, 1), (32, 4, 1), (16, 16, 1), (32, 8, 1)]
 BYTES_PER_RAY = 128                     # the torch march's peak memory per ray (its state and intermediates)
@@ -65,11 +67,13 @@ def parse(argv=None):
     ap.add_argument("--batches", default="512,2048,8192", help="renderer batches")
     ap.add_argument("--net-batches", default="128,512,2048", help="network batches")
     ap.add_argument("--agree", type=int, default=256, help="images of the agreement stage (256)")
+    ap.add_argument("--pose-images", type=int, default=2048, help="images of a march in the poses stage (2048)")
+    ap.add_argument("--pose-workers", default="4,8", help="worker processes of the poses stage (4,8)")
     ap.add_argument("--cpu-check", action="store_true", help="the same stages on a CPU in seconds (interpreter)")
     args = ap.parse_args(argv)
     if args.cpu_check:
         args.profile, args.objects, args.seconds, args.agree = "ci", 1, 0.2, 4
-        args.batches, args.net_batches = "4", "4"
+        args.batches, args.net_batches, args.pose_images, args.pose_workers = "4", "4", 64, "1"
     args.batches = [int(b) for b in str(args.batches).split(",")]
     args.net_batches = [int(b) for b in str(args.net_batches).split(",")]
     return args
@@ -286,6 +290,11 @@ def main(argv=None) -> None:
                               "images_per_s": round(n * batch / wall, 1)})
             rep.write()
 
+    def poses(d):
+        from bench_draw_ahead import measure
+        d.update(measure(args.pose_images, [int(w) for w in str(args.pose_workers).split(",")], rounds=2,
+                         overlap=0.05 if args.cpu_check else 0.3))
+
     rep.stage("setup", setup)
     for name, fn in (("compile", compile_), ("agreement", agreement), ("render", render_stage), ("tiles", tiles),
                      ("network", network), ("both", both)):
@@ -295,6 +304,7 @@ def main(argv=None) -> None:
             rep.write()
             continue
         rep.stage(name, fn)
+    rep.stage("poses", poses)                      # the host alone: whatever the device stages did
     print(f"wrote {args.out}")
 
 

@@ -91,7 +91,7 @@ def cmd_train(args) -> int:
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead",
-            "augment_mirror", "image_size", "batch_size", "lr", "warmup_steps")  # TrainOptions' names
+            "draw_workers", "augment_mirror", "image_size", "batch_size", "lr", "warmup_steps")  # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
                         **{k: getattr(args, k) for k in same})
@@ -312,6 +312,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--render-ahead", type=NONNEG, metavar="N",
                    help="--data stream --backend torch: images rendered in one march, served to the next batches "
                         "(default: up to 2048 on a GPU, as its free memory allows; one batch on the CPU); the same images")
+    p.add_argument("--draw-workers", type=NONNEG, metavar="N",
+                   help="--data stream --backend torch: processes that draw the next march's poses while this one "
+                        "renders (default: up to 8 on a GPU, none on the CPU); the same images")
     p.add_argument("--views", type=COUNT, help="rendered views per training object (default: the profile's)")
     p.add_argument("--image-size", type=_image_size, metavar="W,H",
                    help="training image size in pixels, the camera scaled to it (default: the profile's; the model "

@@ -4,7 +4,7 @@ leave what must come back under a lent GPU machine's transfer limits.
     python maintainer/device_job.py [--profile gpu-lease] [--dataset modelnet10-vox30] [--run DIR]
                                  [--out DIR] [--wait SECONDS] [--budget SECONDS] [--split test|val]
                                  [--data stream] [--backend torch] [--class-balance sampler] [--epochs N] [--seed S]
-                                 [--render-ahead N] [--loss-weights C,O,P] [--fc W1,W2,W3]
+                                 [--render-ahead N] [--draw-workers N] [--loss-weights C,O,P] [--fc W1,W2,W3]
 
 The training flags override the profile's recipe as ``python -m hbeo train``'s do (e.g. the ``cpu`` profile's
 recipe with fresh views rendered on the GPU: ``--profile cpu --data stream --backend torch``); ``--split val``
@@ -126,7 +126,8 @@ def round_weights_bf16(path: Path) -> None:
 
 
 #: ``python -m hbeo train`` options the device job passes on (TrainOptions' names; None: the profile's)
-TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed", "render_ahead", "loss_weights", "fc")
+TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed", "render_ahead", "draw_workers", "loss_weights",
+               "fc")
 VAL_EVAL = "eval_val_hbeo_3dof.json"     # --split val: the validation objects' metrics (the run's own test file
                                          # keeps its name, eval_hbeo_3dof.json)
 
@@ -326,6 +327,8 @@ def main(argv=None) -> int:
     g.add_argument("--seed", type=int)
     g.add_argument("--render-ahead", type=int, metavar="N",
                    help="stream/torch: images rendered in one march (default: up to 2048 on a GPU, as its free memory allows)")
+    g.add_argument("--draw-workers", type=int, metavar="N",
+                   help="stream/torch: processes that draw the next march's poses ahead (default: up to 8 on a GPU)")
     g.add_argument("--loss-weights", metavar="C,O,P", help="gamma_c,gamma_o,gamma_p of the loss (1,1,1)")
     g.add_argument("--fc", metavar="W1,W2,W3", help="widths of HBEONet's three shared layers (the profile's)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)

@@ -360,8 +360,85 @@ def test_torch_stream_training_rendered_ahead_gives_the_same_weights(torch_strea
     assert weights_sha256(fit(tmp_path / "a", 0)) == weights_sha256(fit(tmp_path / "b", 24))
 
 
+def test_poses_drawn_ahead_in_worker_processes_are_the_poses_drawn_here(torch_stream):
+    from hbeo.render.posedraws import DrawAhead
+    _, data = torch_stream
+    base = data(roll=True).train.base
+    base.set_epoch(3)
+    idx, keys = [0, 7, 7, 2, 11, 5, 9], np.arange(40, 47)
+    here = base.draws.draw(idx, 3, keys)
+    drawer = DrawAhead(base.draws, 3)
+    try:
+        drawer.submit("a", idx, 3, keys)
+        assert drawer.take("b") is None                         # another's draw: not taken, still pending
+        ahead = drawer.take("a")
+        assert drawer.take("a") is None                         # taken once
+        drawer.submit("c", idx, 3, None)                        # unrolled
+        plain = drawer.take("c")
+    finally:
+        drawer.close()
+    for k in ("pos", "R", "t"):                                 # three slices, three processes: bit for bit
+        assert np.array_equal(ahead[k], here[k]) and ahead[k].dtype == here[k].dtype
+    assert np.array_equal(plain["R"], base.draws.draw(idx, 3)["R"]) and not np.array_equal(plain["R"], here["R"])
+    got, want = base.render_batch(idx, roll=True, roll_keys=keys, drawn=ahead), \
+        base.render_batch(idx, roll=True, roll_keys=keys)
+    assert all(torch.equal(got[k], want[k]) for k in want)
+    with pytest.raises(ValueError, match="not those of these images"):
+        base.render_batch(idx[::-1], roll=True, roll_keys=keys, drawn=ahead)
+    with pytest.raises(ValueError, match="need the roll keys"):
+        base.render_batch(idx, roll=True, drawn=ahead)
+    noisy = data(roll=True, noise=True).train.base
+    with pytest.raises(ValueError, match="sensor noise"):
+        noisy.render_batch(idx, roll=True, roll_keys=keys, drawn=ahead)
+
+
+def test_torch_stream_marches_drawn_ahead_give_the_same_batches_and_weights(torch_stream, tmp_path, monkeypatch):
+    from hbeo.model.distributed import weights_sha256
+    from hbeo.model.fit import HBEONetTask
+    from hbeo.model.loop import train
+    from hbeo.model.network import NetConfig
+    from hbeo.render.torch_datasets import FreshPoses
+    run, data = torch_stream
+    order = np.array([3, 3, 5, 0, 1, 2, 3, 7, 9, 11, 4, 6, 8, 10, 3, 2], np.int64)
+    drawn, real = [], FreshPoses.render_batch
+    monkeypatch.setattr(FreshPoses, "render_batch", lambda self, idx, **kw: drawn.append(kw.get("drawn") is not None)
+                        or real(self, idx, **kw))
+    views = {}
+    for workers in (0, 2):
+        v = data(roll=True).train
+        v.ahead, v.draw_workers = 4, workers
+        v.plan_reads(order)
+        views[workers] = [i for b in _read(v, order, 4) for i in b]
+        v.close()
+    assert _same(views[2], views[0])
+    assert drawn == [False] * 4 + [False, True, True, True]     # every march after the first was drawn ahead
+    noisy = data(noise=True).train
+    noisy.draw_workers = 2
+    assert noisy._draw_ahead() is None                           # noise draws after the pose: never ahead
+
+    def fit(out, workers):
+        d = data(roll=True, views_per_object=2)
+        d.train.ahead, d.train.draw_workers = 8, workers
+        task = HBEONetTask(NetConfig(image_size=(80, 60), n_classes=2, n_coeffs=len(d.coeff_mean),
+                                     conv_channels=(4, 4, 4, 4), fc=(8, 8, 8)))
+        cfg = TrainConfig(epochs=2, batch_size=4, seed=0, progress=False, device="cpu",
+                          data={"source": "stream", "backend": "torch"})
+        try:
+            return train(task, d.train, d.val, out, cfg)
+        finally:
+            d.train.close()
+    assert weights_sha256(fit(tmp_path / "a", 0)) == weights_sha256(fit(tmp_path / "b", 2))
+
+
+def test_no_process_draws_ahead_on_the_cpu_by_default():
+    from hbeo.render.posedraws import DrawAhead, auto_draw_workers
+    assert auto_draw_workers("cpu") == 0 and 0 <= auto_draw_workers("cuda") <= 8
+    with pytest.raises(ValueError, match="at least one worker"):
+        DrawAhead(None, 0)
+
+
 def test_the_default_march_fits_the_devices_free_memory():
-    from hbeo.model.trainingdata import MARCH_BYTES_PER_RAY, RENDER_AHEAD, auto_render_ahead
+    from hbeo.render.gridcast import MARCH_BYTES_PER_RAY, RENDER_AHEAD, auto_render_ahead
     assert auto_render_ahead(0, 80 * 60) == 0                                   # the CPU: a batch at a time
     assert auto_render_ahead(140 * 2**30, 320 * 240) == RENDER_AHEAD            # an H200: the cap
     small = auto_render_ahead(6 * 2**30, 320 * 240)                             # a 6 GiB card: what fits

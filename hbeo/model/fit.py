@@ -142,6 +142,8 @@ class TrainOptions:
     checkpoint_every: also checkpoint every that many steps; loader_workers: DataLoader worker processes
     (0: in this process); render_ahead: ``stream`` data with render backend ``torch``: images rendered in
     one march (:meth:`hbeo.model.trainingdata.ModelView.plan_reads`; None: up to 2,048 on a GPU as its memory allows, a batch on the
+    CPU); it changes the speed, not the images; draw_workers: the same data, processes that draw the next march's
+    poses while this one renders (:class:`hbeo.render.posedraws.DrawAhead`; None: up to 8 on a GPU, none on the
     CPU); it changes the speed, not the images; augment_mirror: mirror each training view with probability 1/2,
     its object across its class's left-right plane (data ``memory``; :class:`hbeo.model.mirror.MirrorAugment`);
     image_size: (width, height) of the training images (None: the profile's), the camera
@@ -169,6 +171,7 @@ class TrainOptions:
     checkpoint_every: int | None = None
     loader_workers: int = 0
     render_ahead: int | None = None
+    draw_workers: int | None = None
     augment_mirror: bool = False
     image_size: tuple[int, int] | None = None
     batch_size: int | None = None
@@ -275,6 +278,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
             how["roll"] = "position"
         if opts.render_ahead is not None:
             data.train.ahead = opts.render_ahead
+        if opts.draw_workers is not None:
+            data.train.draw_workers = opts.draw_workers
     counts = np.bincount(data.train_labels, minlength=len(data.classes))
     train_set = data.train
     if balance == "sampler":                # unbalanced runs keep the settings (and checkpoints) they had

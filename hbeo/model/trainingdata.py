@@ -39,6 +39,7 @@ from hbeo.model.mirror import MirrorAugment, mirror_targets
 from hbeo.model.preprocess import to_model_view
 from hbeo.render.torch_datasets import (DepthShards, FreshPoses, ShardSampler, StreamingDepth, load_shard, split_by_object,
                                         split_objects)
+from hbeo.render.gridcast import auto_render_ahead
 from hbeo.render.renderset import Manifest
 from hbeo.render.views import RenderSettings
 from hbeo.rotations import matrix_to_axis_angle
@@ -207,19 +208,20 @@ class ModelView(Dataset):
     (:meth:`__getitems__`, :func:`model_batch`), each roll then rendered, not resampled."""
 
     def __init__(self, base, K, opts: ViewOptions, coeff_mean, coeff_std, roll: bool = False, order=None,
-                 ahead: int | None = None):
+                 ahead: int | None = None, draw_workers: int | None = None):
         self.base, self.K, self.opts, self.roll, self.order = base, K, opts, roll, order
         self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
         self.ahead = ahead          #: images rendered in one march (:meth:`plan_reads`); None: auto
-        self._plan, self._start, self._cursor, self._chunk = None, 0, 0, None
+        self.draw_workers = draw_workers    #: processes drawing poses ahead (posedraws.drawer_for; None: auto)
+        self._plan, self._start, self._cursor, self._chunk, self._plans, self._drawer = None, 0, 0, None, 0, None
 
     def plan_reads(self, order, start: int = 0) -> None:
         """The order in which the training loader will read this epoch's items (its sampler, this
         process's share, a resumed epoch's rest), ``start`` the position of ``order[0]`` in the epoch's
         whole reading order (:func:`hbeo.model.loop.data_loader`). A base that renders whole batches
-        then (1) rolls the image read at position q by :func:`hbeo.render.torch_datasets.roll_rng` of q,
+        then (1) rolls the image read at position q by :func:`hbeo.render.posedraws.roll_rng` of q,
         so the images do not depend on how they are grouped, and (2) renders :attr:`ahead` images of the
-        plan in one march (``None``: :func:`auto_render_ahead` of the device's free memory, chosen at the
+        plan in one march (``None``: :func:`hbeo.render.gridcast.auto_render_ahead` of the device's free memory, chosen at the
         first march; none on the CPU, where a larger march is no faster) and serves the next batches
         from them. On a GPU a march is mostly a fixed cost of launches and host syncs: a streamed step
         of 64 images at 80x60 took 79 ms on an H200, one of 128 at 320x240 191 ms
@@ -228,6 +230,9 @@ class ModelView(Dataset):
         alone, as before."""
         self._plan, self._start = np.asarray(order, np.int64), int(start)
         self._cursor, self._chunk = 0, None
+        self._plans += 1            # a draw made ahead for an earlier plan is never taken
+        if self._drawer:
+            self._drawer.cancel()
 
     def _planned_at(self, idx: np.ndarray) -> int | None:
         """Where in the plan ``idx`` is read (the cursor first, else the first place it matches), or None."""
@@ -258,14 +263,33 @@ class ModelView(Dataset):
             return self._on_device(model_batch(raw, self.K, self.opts, self.coeff_mean, self.coeff_std))
         n, ch = len(idx), self._chunk
         if ch is None or not ch[0] <= at or at + n > ch[0] + ch[1]:
-            chunk = self._plan[at:at + self._ahead(n)]
-            keys = self._start + at + np.arange(len(chunk)) if self.roll else None
-            raw = self.base.render_batch(chunk.tolist(), roll=self.roll, roll_keys=keys)
+            size = self._ahead(n)
+            chunk = self._plan[at:at + size]
+            keys = self._keys(at, len(chunk))
+            drawer, epoch, end = self._draw_ahead(), getattr(self.base, "epoch", 0), at + len(chunk)
+            drawn = drawer.take((self._plans, epoch, at, len(chunk))) if drawer else None
+            if drawer and len(nxt := self._plan[end:end + size]):     # the next march's poses, drawn meanwhile
+                drawer.submit((self._plans, epoch, end, len(nxt)), nxt, epoch, self._keys(end, len(nxt)))
+            raw = self.base.render_batch(chunk.tolist(), roll=self.roll, roll_keys=keys, drawn=drawn)
             ch = self._chunk = (at, len(chunk), self._on_device(model_batch(raw, self.K, self.opts, self.coeff_mean,
                                                                             self.coeff_std)))
         self._cursor = at + n
         a = at - ch[0]
         return {k: v[a:a + n] for k, v in ch[2].items()}
+
+    def _keys(self, at: int, n: int):
+        return self._start + at + np.arange(n) if self.roll else None     # the images' reading positions
+
+    def _draw_ahead(self):
+        if self._drawer is None:          # decided on the first march (False: none draws ahead)
+            from hbeo.render.posedraws import drawer_for
+            self._drawer = drawer_for(self.base, self.draw_workers) or False
+        return self._drawer or None
+
+    def close(self) -> None:
+        """Stop the processes drawing poses ahead, if any."""
+        if self._drawer:
+            self._drawer.close()
 
     @staticmethod
     def _on_device(batch: dict) -> dict:
@@ -300,21 +324,6 @@ class ModelView(Dataset):
         if hasattr(self.base, "epoch_sampler"):
             return self.base.epoch_sampler(seed, epoch)
         return torch.utils.data.RandomSampler(self, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
-
-
-#: :meth:`ModelView.plan_reads`: at most this many images rendered in one march on a CUDA device (the
-#: ray-marcher reached 2,722 images/s at 320x240 in batches of 2,048 on an H200, 1,028 in batches of 128:
-#: lease-2026-11-26b)
-RENDER_AHEAD = 2048
-#: peak bytes a ray of a march holds (its state and temporaries; measured on the CPU: 101 at
-#: 1,024 images of 80x60, 128 at 4,096)
-MARCH_BYTES_PER_RAY = 128
-
-
-def auto_render_ahead(free_bytes: int, pixels: int) -> int:
-    """Images to render in one march on a device with ``free_bytes`` free, of ``pixels`` rays each: at most
-    :data:`RENDER_AHEAD`, and a march within a quarter of the free memory (0: a batch at a time)."""
-    return int(min(RENDER_AHEAD, max(0, int(free_bytes)) // (4 * MARCH_BYTES_PER_RAY * max(1, int(pixels)))))
 
 
 #: :class:`ModelViewStream` keeps a pass's items for the next one up to this many depth pixels (4 bytes each)

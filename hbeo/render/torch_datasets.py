@@ -27,9 +27,10 @@ from torch.utils.data import Dataset as TorchDataset, IterableDataset, Sampler, 
 from hbeo.batches import Stacked
 from hbeo.data.datasets import split_objects
 from hbeo.errors import DataError
+from hbeo.render.posedraws import PoseDraws, rolled
 from hbeo.render.renderset import SHARD_KEYS, Manifest
-from hbeo.render.views import SPLIT_CODES, ObjectViews, RenderSettings, _split_code, check_grid_records, object_rng
-from hbeo.rotations import matrix_to_axis_angle, z_angle_to_matrix
+from hbeo.render.views import SPLIT_CODES, ObjectViews, RenderSettings, _split_code, check_grid_records
+from hbeo.rotations import matrix_to_axis_angle
 from hbeo.storage import unpack_bits
 
 
@@ -274,6 +275,7 @@ class FreshPoses(TorchDataset):
         self.epoch = 0
         self._ctx = None
         self._caster = None
+        self._coeff_table = None    #: (n_objects, k) every object's coefficients, once the first batch asks
         self.device = None          #: backend "torch": the device batches are rendered on (None: auto)
         if settings.backend == "torch":
             check_grid_records(self.base.records)
@@ -350,16 +352,26 @@ class FreshPoses(TorchDataset):
         if b.subspace is not None and not self._ctx.prefilled:
             self._ctx.prefill_coeffs(b.records, COEFF_BLOCK)
 
-    def render_batch(self, indices, roll: bool = False, roll_keys=None) -> dict:
+    @property
+    def draws(self) -> PoseDraws:
+        """The host-side pose draws of this dataset's images (picklable: :class:`hbeo.render.posedraws.DrawAhead`
+        draws them in worker processes)."""
+        b = self.base
+        return PoseDraws(b.settings, b.split, len(b), self.passes)
+
+    def render_batch(self, indices, roll: bool = False, roll_keys=None, drawn: dict | None = None) -> dict:
         """Images ``indices`` of this epoch rendered together (render backend ``torch``): the items of
         :meth:`__getitem__` stacked, ``depth`` (B, 1, H, W) on the caster's device (:meth:`caster`), the
         rest on the CPU; the same images as :meth:`__getitem__` gives one by one. ``roll``: each camera
         first turns about its optical axis by a uniform random angle (``rotation`` and ``translation`` turn
         with it): an exact rolled view, rendered, not resampled. The angle of image k comes from
-        :func:`roll_rng` of ``roll_keys[k]`` (an int: the image's position in the epoch's reading order,
+        :func:`hbeo.render.posedraws.roll_rng` of ``roll_keys[k]`` (an int: the image's position in the epoch's reading order,
         which the training loader plans, :meth:`hbeo.model.trainingdata.ModelView.plan_reads`), so a batch
         renders the same whichever chunk it is rendered in, and an object drawn twice in an epoch is rolled
-        twice; without keys, from torch's global generator."""
+        twice; without keys, from torch's global generator. ``drawn``: the poses already drawn,
+        :meth:`PoseDraws.draw` of ``indices``, this epoch and ``roll_keys`` (when ``roll``), e.g. ahead in
+        worker processes (:class:`hbeo.render.posedraws.DrawAhead`); not with sensor noise, which draws
+        from each image's generator after its pose."""
         b, n = self.base, len(self.base)
         s = b.settings
         if not self.renders_batches:
@@ -369,21 +381,26 @@ class FreshPoses(TorchDataset):
             raise IndexError(f"image {bad[0]} out of range for {len(self)} views per epoch")
         if self._ctx is None:
             self._ctx = ObjectViews(s, b.subspace)
-        pos, rngs = [], []
-        for i in idx:
-            j, p = divmod(i, n)
-            pos.append(p), rngs.append(object_rng(s.seed, b.split, p, self.epoch * self.passes + j))
-        R, t = s.view_sampler.sample_each(rngs)           # each image's sample(1, rng), the arithmetic batched
-        if roll:
-            if roll_keys is None:
-                angles = torch.rand(len(idx), dtype=torch.float64).numpy() * 2 * np.pi
-            else:
-                if len(roll_keys) != len(idx):
-                    raise ValueError(f"render_batch: {len(roll_keys)} roll keys for {len(idx)} images")
-                angles = np.array([roll_rng(s.seed, b.split, self.epoch, int(k)).uniform(0, 2 * np.pi)
-                                   for k in roll_keys])
-            Rz = z_angle_to_matrix(angles)
-            R, t = Rz @ R, (Rz @ t[:, :, None])[:, :, 0]
+        if drawn is None:
+            pos, rngs = self.draws.positions(idx, self.epoch)
+            R, t = s.view_sampler.sample_each(rngs)       # each image's sample(1, rng), the arithmetic batched
+            if roll:
+                if roll_keys is None:
+                    angles = torch.rand(len(idx), dtype=torch.float64).numpy() * 2 * np.pi
+                else:
+                    if len(roll_keys) != len(idx):
+                        raise ValueError(f"render_batch: {len(roll_keys)} roll keys for {len(idx)} images")
+                    angles = self.draws.roll_angles(self.epoch, roll_keys)
+                R, t = rolled(R, t, angles)
+        else:
+            if s.noise:
+                raise ValueError("render_batch: poses drawn ahead cannot carry sensor noise (it draws from each "
+                                 "image's generator after the pose)")
+            if roll and roll_keys is None:
+                raise ValueError("render_batch: rolled poses drawn ahead need the roll keys they were drawn with")
+            pos, R, t = drawn["pos"], drawn["R"], drawn["t"]
+            if len(pos) != len(idx) or not np.array_equal(pos, np.asarray(idx, np.int64) % n):
+                raise ValueError("render_batch: the poses drawn ahead are not those of these images")
         caster = self.caster()
         depth = caster.render(torch.as_tensor(pos), R, t)
         if s.noise:                                  # the numpy noise model, each view with its own stream
@@ -392,14 +409,16 @@ class FreshPoses(TorchDataset):
             depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).to(caster.device)
         depth = depth.half().float()                 # as a rendered set stores it (float16)
         depth[~(depth > 0)] = 0
-        out = {"depth": depth[:, None], "label": torch.tensor([b.labels[p] for p in pos], dtype=torch.long),
+        out = {"depth": depth[:, None], "label": torch.from_numpy(np.asarray(b.labels, np.int64)[pos]),
                "rotation": torch.from_numpy(R.astype(np.float32)),
                "axis_angle": torch.from_numpy(matrix_to_axis_angle(R).astype(np.float32)),
                "translation": torch.from_numpy(t.astype(np.float32)),
                "object_index": torch.tensor(pos, dtype=torch.long)}
         if b.subspace is not None:
             self._prefill_coeffs()
-            out["coeffs"] = torch.from_numpy(np.stack([self._ctx.coeffs(b.records[p]) for p in pos]))
+            if self._coeff_table is None:            # every object's coefficients, one gather a batch
+                self._coeff_table = np.stack([self._ctx.coeffs(r) for r in b.records])
+            out["coeffs"] = torch.from_numpy(self._coeff_table[pos])
         return out
 
     def __getitems__(self, indices):
@@ -413,16 +432,6 @@ class FreshPoses(TorchDataset):
 
 #: objects a :class:`StreamingDepth` pass renders together on a GPU (:meth:`hbeo.render.views.ObjectViews.views_many`)
 MANY_OBJECTS = 128
-
-
-#: :func:`roll_rng`'s tag, which keeps its streams apart from :func:`hbeo.render.views.object_rng`'s
-ROLL_TAG = 0x701
-
-
-def roll_rng(seed: int, split: str, epoch: int, position: int) -> np.random.Generator:
-    """The random stream of the camera roll of the image read at ``position`` (in the epoch's reading
-    order, counted over the whole epoch: a data-parallel rank's share starts at its offset) of ``epoch``."""
-    return np.random.default_rng([int(seed), SPLIT_CODES[split], ROLL_TAG, int(epoch), int(position)])
 
 
 #: Objects projected onto the subspace together by :meth:`FreshPoses._prefill_coeffs`.
