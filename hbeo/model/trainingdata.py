@@ -221,8 +221,8 @@ class ModelView(Dataset):
         whole reading order (:func:`hbeo.model.loop.data_loader`). A base that renders whole batches
         then (1) rolls the image read at position q by :func:`hbeo.render.posedraws.roll_rng` of q,
         so the images do not depend on how they are grouped, and (2) renders :attr:`ahead` images of the
-        plan in one march (``None``: :func:`hbeo.render.gridcast.auto_render_ahead` of the device's free memory, chosen at the
-        first march; none on the CPU, where a larger march is no faster) and serves the next batches
+        plan in one march (``None``: :func:`hbeo.render.gridcast.auto_render_ahead` of the device's free memory,
+        chosen at the first march; none on the CPU, where a larger march is no faster) and serves the next batches
         from them. On a GPU a march is mostly a fixed cost of launches and host syncs: a streamed step
         of 64 images at 80x60 took 79 ms on an H200, one of 128 at 320x240 191 ms
         (the device job's leases, ``docs/history/gpu-*``), and the marcher alone rendered 404 images/s in

@@ -27,7 +27,9 @@ Method, per ray ``p(z) = a + z b`` (padded index coordinates, linear in the came
     step march it can miss a feature thinner than ``step`` along the ray that ``grid_mesh`` shows.
 
 Memory: per object the field (float32) and the safe distance (uint8) over its box only, about
-50 kB for a ModelNet10 object at R = 30 (a few hundred MB for all of ModelNet10's training grids).
+50 kB for a ModelNet10 object at R = 30 (a few hundred MB for all of ModelNet10's training grids). A march's
+own memory per ray (:data:`MARCH_BYTES_PER_RAY`) sizes how many images a streamed training renders at once
+(:func:`auto_render_ahead`).
 
 Backends of the march (``backend``): ``torch`` (:meth:`GridCaster._march`, any device, the reference) or
 ``triton`` (:func:`hbeo.render.fused.march`: one fused kernel, CUDA, or a CPU under Triton's interpreter);
@@ -396,8 +398,8 @@ def embree_agreement(grids, intrinsics: C.Intrinsics, n_poses: int, seed: int = 
     return {"iou": np.array(ious), "iou_pooled": inter / union, "depth_diff": np.concatenate(diffs)}
 
 
-#: :meth:`hbeo.model.trainingdata.ModelView.plan_reads`: at most this many images rendered in one march on a CUDA device (the
-#: ray-marcher reached 2,722 images/s at 320x240 in batches of 2,048 on an H200, 1,028 in batches of 128:
+#: :meth:`hbeo.model.trainingdata.ModelView.plan_reads`: at most this many images rendered in one march on a CUDA
+#: device (the ray-marcher reached 2,722 images/s at 320x240 in batches of 2,048 on an H200, 1,028 in batches of 128:
 #: lease-2026-11-26b)
 RENDER_AHEAD = 2048
 #: peak bytes a ray of a march holds (its state and temporaries; measured on the CPU: 101 at

@@ -365,9 +365,9 @@ class FreshPoses(TorchDataset):
         rest on the CPU; the same images as :meth:`__getitem__` gives one by one. ``roll``: each camera
         first turns about its optical axis by a uniform random angle (``rotation`` and ``translation`` turn
         with it): an exact rolled view, rendered, not resampled. The angle of image k comes from
-        :func:`hbeo.render.posedraws.roll_rng` of ``roll_keys[k]`` (an int: the image's position in the epoch's reading order,
-        which the training loader plans, :meth:`hbeo.model.trainingdata.ModelView.plan_reads`), so a batch
-        renders the same whichever chunk it is rendered in, and an object drawn twice in an epoch is rolled
+        :func:`hbeo.render.posedraws.roll_rng` of ``roll_keys[k]`` (an int: the image's position in the epoch's
+        reading order, which the training loader plans, :meth:`hbeo.model.trainingdata.ModelView.plan_reads`), so a
+        batch renders the same whichever chunk it is rendered in, and an object drawn twice in an epoch is rolled
         twice; without keys, from torch's global generator. ``drawn``: the poses already drawn,
         :meth:`PoseDraws.draw` of ``indices``, this epoch and ``roll_keys`` (when ``roll``), e.g. ahead in
         worker processes (:class:`hbeo.render.posedraws.DrawAhead`); not with sensor noise, which draws
