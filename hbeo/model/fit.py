@@ -293,7 +293,10 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
                      num_workers=opts.loader_workers)
     task = HBEONetTask(cfg, opts.loss, np.asarray(data.coeff_std) if shape_loss == "voxels" else None,
                        tuple(class_weights(counts)) if balance == "loss" else None)
-    net = train(task, train_set, data.val, run.training(model_path), tc)
+    try:
+        net = train(task, train_set, data.val, run.training(model_path), tc)
+    finally:
+        getattr(data.train, "close", lambda: None)()     # processes drawing poses ahead, if any
     model_settings = {"object_size": data.settings.object_size, "recenter": view.recenter,
                       "ref_distance": view.ref_distance, "coeff_mean": data.coeff_mean, "coeff_std": data.coeff_std,
                       "render": data.settings.to_dict(), "profile": prof.name, "augment_roll": augment_roll,
