@@ -61,3 +61,21 @@ def test_batched_matches_single_and_float_predictions_threshold():
         metrics.iou(t, p[:2])
     with pytest.raises(ValueError, match="expected a grid"):
         metrics.iou(np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+def test_edt_of_repeated_grids_is_the_one_field_a_pair_figure():
+    """Grids that repeat (an object's views, a class's mean shape, an empty completion) have their distance
+    field computed once: the same numbers as computing it for every pair."""
+    from hbeo.subspace.metrics import distance_field
+    rng = np.random.default_rng(3)
+    objs = rng.random((4, 12, 12, 12)) < 0.15
+    truth = np.repeat(objs, 3, axis=0)                          # three views of each object
+    means = rng.random((2, 12, 12, 12)) < 0.2
+    for pred in (rng.random((12, 12, 12, 12)) < 0.15, means[rng.integers(0, 2, 12)]):
+        pred = pred.copy()
+        pred[2] = False                                          # an empty completion
+        pred[4] = truth[4]                                       # a perfect one: its field is the target's
+        pred[9] = truth[0]                                       # another object's grid, used again after its last view
+        want = np.array([np.linalg.norm(distance_field(a) - distance_field(b)) for a, b in zip(truth, pred)])
+        got = metrics.edt_error(truth, pred)
+        assert np.array_equal(got, want) and got[4] == 0 and got[2] > 0
