@@ -63,9 +63,11 @@ def test_batched_matches_single_and_float_predictions_threshold():
         metrics.iou(np.zeros((3, 3)), np.zeros((3, 3)))
 
 
-def test_edt_of_repeated_grids_is_the_one_field_a_pair_figure():
+@pytest.mark.parametrize("block,threads", [(128, 1), (5, 1), (5, 3), (1, 2)])
+def test_edt_of_repeated_grids_is_the_one_field_a_pair_figure(monkeypatch, block, threads):
     """Grids that repeat (an object's views, a class's mean shape, an empty completion) have their distance
-    field computed once: the same numbers as computing it for every pair."""
+    field computed once, blocks of fields on several threads: the same numbers as computing it for every pair."""
+    monkeypatch.setattr(metrics, "EDT_BLOCK", block)
     from hbeo.subspace.metrics import distance_field
     rng = np.random.default_rng(3)
     objs = rng.random((4, 12, 12, 12)) < 0.15
@@ -77,5 +79,5 @@ def test_edt_of_repeated_grids_is_the_one_field_a_pair_figure():
         pred[4] = truth[4]                                       # a perfect one: its field is the target's
         pred[9] = truth[0]                                       # another object's grid, used again after its last view
         want = np.array([np.linalg.norm(distance_field(a) - distance_field(b)) for a, b in zip(truth, pred)])
-        got = metrics.edt_error(truth, pred)
+        got = metrics.edt_error(truth, pred, threads=threads)
         assert np.array_equal(got, want) and got[4] == 0 and got[2] > 0

@@ -16,8 +16,13 @@ Empty grids, explicitly:
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
+
 import numpy as np
 from scipy import ndimage
+
+from hbeo.limits import usable_cores
 
 
 def _batch(x, name: str) -> tuple[np.ndarray, bool]:
@@ -51,37 +56,38 @@ def distance_field(grid: np.ndarray) -> np.ndarray:
     return ndimage.distance_transform_edt(~g)
 
 
-def edt_error(target, pred):
+def edt_error(target, pred, threads: int | None = None):
     """e' = ||D - D_hat||_2 between the targets' and predictions' distance fields.
 
     A grid that occurs more than once in the call (an object's several views, a class's mean shape) has its
-    distance field computed once and kept until its last use: the same numbers as one field a pair
-    (the EDT is most of an evaluation's scoring time)."""
+    distance field computed once and kept until its last use; the fields of a block of :data:`EDT_BLOCK` pairs
+    are computed on ``threads`` threads (None: the usable cores; scipy's EDT runs without the GIL). The same
+    numbers as one field a pair, computed in turn: the EDT is most of an evaluation's scoring time."""
     t, p, single = _pair(target, pred)
-    keys = _grid_keys(np.concatenate([t, p]))
     n = len(t)
-    last, count = {}, {}
-    for i, k in enumerate(keys[:n]):
-        last[k], count[k] = i, count.get(k, 0) + 1
-    for i, k in enumerate(keys[n:]):
-        last[k], count[k] = max(last.get(k, -1), i), count.get(k, 0) + 1
-    kept = {}
-
-    def field(grid, k):
-        if count[k] == 1:
-            return distance_field(grid)
-        if k not in kept:
-            kept[k] = distance_field(grid)
-        return kept[k]
-
-    out = np.empty(n)
+    keys = _grid_keys(np.concatenate([t, p]))
+    last = {}
     for i in range(n):
-        ft, fp = field(t[i], keys[i]), field(p[i], keys[n + i])
-        out[i] = np.linalg.norm(ft - fp)
-        for k in (keys[i], keys[n + i]):
-            if last.get(k) == i:
-                kept.pop(k, None)
+        last[keys[i]] = last[keys[n + i]] = i
+    threads = usable_cores() if threads is None else max(1, int(threads))
+    out, kept = np.empty(n), {}
+    with ThreadPoolExecutor(threads) if threads > 1 and n > 1 else nullcontext() as pool:
+        for a in range(0, n, EDT_BLOCK):
+            b = min(n, a + EDT_BLOCK)
+            need = {}
+            for i in range(a, b):
+                for k, g in ((keys[i], t[i]), (keys[n + i], p[i])):
+                    if k not in kept and k not in need:
+                        need[k] = g
+            kept.update(zip(need, (pool.map if pool else map)(distance_field, need.values())))
+            for i in range(a, b):
+                out[i] = np.linalg.norm(kept[keys[i]] - kept[keys[n + i]])
+            kept = {k: f for k, f in kept.items() if last[k] >= b}     # those used again after this block
     return _out(out, single)
+
+
+#: pairs whose distance fields :func:`edt_error` computes together (~0.2 MB a field at 30^3)
+EDT_BLOCK = 128
 
 
 def _grid_keys(grids: np.ndarray) -> list[bytes]:
