@@ -138,3 +138,19 @@ def test_claims_of_the_committed_run_are_the_notebook_s_table():
     assert list(cl.index[:2]) == [("hbeo", 0), ("hbeo", 1)] and cl.index[-1] == ("hbeo-verify", len(CLAIMS) - 1)
     some = tables.claims({k: evals[k] for k in (("hbeo", "3dof"), ("icp", "3dof"))})
     assert list(some.index) == [("hbeo", 4)] and some.iloc[0]["verdict"] == cl.loc[("hbeo", 4), "verdict"]
+
+
+def test_the_resolution_line_comes_from_the_studys_files_or_is_absent(tmp_path):
+    import json as _json
+    from hbeo.report import reproduction_md as md
+    assert md._resolution_line(tmp_path) == []                    # no study: no line
+    for i, (_, f, paired) in enumerate(md.RESOLUTION_FILES):
+        (tmp_path / f).write_text(_json.dumps({"class_mean_accuracy": 0.7 - 0.01 * i}))
+        if paired:
+            (tmp_path / paired).write_text(_json.dumps({"contrasts": {"class_accuracy": {
+                "value": -0.01 * i, "low": -0.03, "high": 0.004, "n_objects": 397}}}))
+    (line,) = md._resolution_line(tmp_path)
+    assert "80×60 70.0 %" in line and "120×90 69.0 % (-1.0 points [-3.0, +0.4], 397 objects)" in line
+    assert "160×120 68.0 % (-2.0 points" in line
+    (tmp_path / md.RESOLUTION_FILES[2][2]).unlink()               # one paired file missing: no line
+    assert md._resolution_line(tmp_path) == []

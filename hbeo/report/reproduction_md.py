@@ -181,6 +181,7 @@ def deviations(man: dict, run=None) -> list[str]:
         f"The layer pattern (four strided convolutions, three shared fully connected layers, three heads) is the paper's.",
         recipe_line + ". 10 % of each class's training objects are held out for validation (the paper trains on all).",
         _completion_line(run),
+        *_resolution_line(run),
         "- **HBEO + verify** (rows marked *ours*) adds test-time roll averaging and a check of the network's top "
         "rotation hypotheses against the depth image (`hbeo.model.verify`); it is not in the paper and is "
         "reported beside, never instead of, HBEO.",
@@ -224,6 +225,32 @@ def _completion_line(run) -> str:
         return head + ("This run's HBEO evaluations used the paper's rule (made before the default changed); the "
                        "never-empty rule on the same queries is in the completion section above, where computed.")
     return head + "This run's HBEO evaluations used the never-empty rule; the paper's is beside in each file."
+
+
+#: the resolution study's validation files in the run folder: (image size, metrics file, paired file against 80x60)
+RESOLUTION_FILES = (("80×60", "eval_val-basis143-e10.json", None),
+                    ("120×90", "eval_val-res120-e10.json", "res120-e10_vs_basis143-e10_val.json"),
+                    ("160×120", "eval_val-res160-e10.json", "res160-e10_vs_basis143-e10_val.json"))
+
+
+def _resolution_line(run) -> list[str]:
+    """The resolution study's deviation line, from its validation files (none: no line): the class mean at each
+    image size after the same 10 epochs, the paired difference against 80x60 with its interval."""
+    d = RunDir.of(run).path if run is not None else None
+    if d is None or not all((d / f).exists() and (p is None or (d / p).exists()) for _, f, p in RESOLUTION_FILES):
+        return []
+    parts = []
+    for size, f, paired in RESOLUTION_FILES:
+        cm = 100 * json.loads((d / f).read_text())["class_mean_accuracy"]
+        if paired is None:
+            parts.append(f"{size} {cm:.1f} %")
+            continue
+        c = json.loads((d / paired).read_text())["contrasts"]["class_accuracy"]
+        parts.append(f"{size} {cm:.1f} % ({100 * c['value']:+.1f} points [{100 * c['low']:+.1f}, "
+                     f"{100 * c['high']:+.1f}], {c['n_objects']} objects)")
+    return ["- **Image size.** Is 80×60 the gap? The same recipe for 10 epochs at three sizes (the camera scaled, the "
+            f"same views), validation class mean: {'; '.join(parts)}. Larger images scored lower at that budget, so "
+            "80×60 stays (the model table's resolution rows and their rule, `docs/experiments.md`)."]
 
 
 def check_finished_run(run) -> RunDir:
