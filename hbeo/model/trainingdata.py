@@ -213,7 +213,7 @@ class ModelView(Dataset):
         self.coeff_mean, self.coeff_std = np.asarray(coeff_mean, np.float32), np.asarray(coeff_std, np.float32)
         self.ahead = ahead          #: images rendered in one march (:meth:`plan_reads`); None: auto
         self.draw_workers = draw_workers    #: processes drawing poses ahead (posedraws.drawer_for; None: auto)
-        self._plan, self._start, self._cursor, self._chunk, self._plans, self._drawer = None, 0, 0, None, 0, None
+        self._plan, self._start, self._cursor, self._chunk, self._drawer = None, 0, 0, None, None
 
     def plan_reads(self, order, start: int = 0) -> None:
         """The order in which the training loader will read this epoch's items (its sampler, this
@@ -230,8 +230,7 @@ class ModelView(Dataset):
         alone, as before."""
         self._plan, self._start = np.asarray(order, np.int64), int(start)
         self._cursor, self._chunk = 0, None
-        self._plans += 1            # a draw made ahead for an earlier plan is never taken
-        if self._drawer:
+        if self._drawer:            # a draw made ahead for an earlier plan is never taken
             self._drawer.cancel()
 
     def _planned_at(self, idx: np.ndarray) -> int | None:
@@ -267,9 +266,9 @@ class ModelView(Dataset):
             chunk = self._plan[at:at + size]
             keys = self._keys(at, len(chunk))
             drawer, epoch, end = self._draw_ahead(), getattr(self.base, "epoch", 0), at + len(chunk)
-            drawn = drawer.take((self._plans, epoch, at, len(chunk))) if drawer else None
+            drawn = drawer.take((epoch, at, len(chunk))) if drawer else None
             if drawer and len(nxt := self._plan[end:end + size]):     # the next march's poses, drawn meanwhile
-                drawer.submit((self._plans, epoch, end, len(nxt)), nxt, epoch, self._keys(end, len(nxt)))
+                drawer.submit((epoch, end, len(nxt)), nxt, epoch, self._keys(end, len(nxt)))
             raw = self.base.render_batch(chunk.tolist(), roll=self.roll, roll_keys=keys, drawn=drawn)
             ch = self._chunk = (at, len(chunk), self._on_device(model_batch(raw, self.K, self.opts, self.coeff_mean,
                                                                             self.coeff_std)))
