@@ -97,9 +97,11 @@ def test_score_grids_matches_the_metrics():
 
 
 def test_threshold_choice_is_the_lowest_mean_with_ties_nearest_half():
-    scan = pd.DataFrame({"threshold": [0.3, 0.4, 0.5], "mean_edt": [5.0, 4.0, 4.0]})
-    assert D.choose_threshold(scan) == 0.5
-    assert D.choose_threshold(scan.assign(mean_edt=[3.0, 4.0, 4.0])) == 0.3
+    scan = pd.DataFrame({"threshold": [0.3, 0.4, 0.5], "nonempty_mean_edt": [5.0, 4.0, 4.0],
+                         "mean_edt": [1.0, 9.0, 9.0]})
+    assert D.choose_threshold(scan) == 0.5                  # the never-empty rule's mean, not the paper's rule's
+    assert D.choose_threshold(scan.assign(nonempty_mean_edt=[3.0, 4.0, 4.0])) == 0.3
+    assert D.choose_threshold(scan, "mean_edt") == 0.3      # the rule's first version
 
 
 def test_coefficient_r2_splits_the_error():
@@ -126,7 +128,7 @@ def test_completions_and_scan_on_a_stand_in_subspace():
                   np.zeros(2), truth, coeffs, sub.project(truth))
     s = D.score_grids(truth, D.completions(q, sub, ("a", "b"), (0.4, 0.5)))
     scan = D.threshold_scan(s, (0.4, 0.5))
-    assert scan["empty"].tolist() == [1, 2] and D.choose_threshold(scan) == 0.4
+    assert scan["empty"].tolist() == [1, 2] and D.choose_threshold(scan, "mean_edt") == 0.4
     assert not s["nonempty t=0.5"]["empty"].any()
 
 
@@ -134,6 +136,12 @@ def test_markdown_of_a_table():
     from hbeo.report.completion_gap import markdown
     rows = [D.summary("HBEO, back-projection >= 0.5", [1.0, 2.0], [0.5, 0.5], [0, 0], ["o", "p"], "validation",
                       "val", 0.5, n_boot=10),
+            D.summary("HBEO, back-projection >= 0.3", [5.0, 7.0], [0.5, 0.5], [1, 1], ["o", "p"], "validation",
+                      "val", 0.3, n_boot=10),
+            D.summary("HBEO never empty, back-projection >= 0.5", [1.0, 2.0], [0.5, 0.5], [0, 0], ["o", "p"],
+                      "validation", "val", 0.5, n_boot=10),
+            D.summary("HBEO never empty, back-projection >= 0.3", [3.0, 3.0], [0.4, 0.4], [0, 0], ["o", "p"],
+                      "validation", "val", 0.3, n_boot=10),
             D.summary("HBEO never empty", [1.0, 2.0], [0.5, 0.5], [0, 0], ["o", "p"], "validation", "val", 0.5,
                       n_boot=10),
             D.summary("HBEO (paper's rule, >= 0.5)", [1.0], [0.5], [1], ["o"], accuracy=1.0, n_boot=10),
@@ -144,8 +152,15 @@ def test_markdown_of_a_table():
              "empty": 0},
             {"section": "empty", "row": "HBEO: all", "n": 1, "empty": 1},
             {"section": "empty", "row": "HBEO: chair", "n": 1, "empty": 1}]
-    text = "\n".join(markdown(pd.DataFrame(rows, columns=list(D.COLUMNS))))
-    assert "chosen by lowest mean e': **0.5**" in text and "| chair | 1 | 1 |" in text
+    table = pd.DataFrame(rows, columns=list(D.COLUMNS))
+    text = "\n".join(markdown(table))
+    assert "chosen by lowest mean e' of the never-empty rule, the rule HBEO answers by: **0.5**" in text
+    assert "| chair | 1 | 1 |" in text
+    assert "| 0.3 | 2 | 6 [5, 7] | 6 | 0.500 | 2 | 3 [3, 3] | 3 | 0.400 |" in text   # both rules on one line
+    assert "| 0.5 (chosen) | 2 |" in text
+    first = "\n".join(markdown(table[~table["row"].str.startswith(D.SCAN_NONEMPTY)]))   # the rule's first version
+    assert "the paper's rule (the rule's first version, no fallback): **0.5**" in first
+    assert "| 0.3 | 2 | 6 [5, 7] | 6 | 0.500 | 2 | – | – | – |" in first
     assert "| HBEO (paper's rule, >= 0.5) | 1 | 1 [1, 1] | 1 | 0.500 | 1 | 100.0 % |" in text   # its one empty
     assert "class on 100.00 % of the 1 test queries" in text
 
