@@ -136,6 +136,20 @@ def _add_completion(p) -> None:
                    help="HBEO's completion rule: nonempty (the default: the threshold chosen on validation, never an "
                         "empty grid; an evaluation also scores the paper's rule beside) or paper (back-projection "
                         ">= 0.5 only); hbeo.model.completion_rule")
+    p.add_argument("--completion-threshold", type=float, metavar="T",
+                   help="the completion rule's threshold instead of its own (0 < T < 1; the never-empty rule's when "
+                        "--completion is not given), e.g. to evaluate again under an earlier default")
+
+
+def _completion(args):
+    """``--completion`` and ``--completion-threshold`` as set_completion takes them (a name, a rule or None)."""
+    if args.completion_threshold is None:
+        return args.completion
+    from hbeo.model.completion_rule import DEFAULT, rule
+    if args.completion == "paper":
+        raise ValueError("--completion-threshold: the paper's rule is back-projection >= 0.5; a threshold is the "
+                         "never-empty rule's (--completion nonempty)")
+    return rule(args.completion or DEFAULT, args.completion_threshold)
 
 
 def cmd_predict(args) -> int:
@@ -143,7 +157,7 @@ def cmd_predict(args) -> int:
     verify = verify_config(args.verify, args.verify_set)  # bad settings fail before the model is read
     answer = predict_file(args.model, args.depth, args.intrinsics, args.mask, args.depth_scale, args.rolls, verify,
                           args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau,
-                          members=args.ensemble, mirror=args.mirror, completion=args.completion)
+                          members=args.ensemble, mirror=args.mirror, completion=_completion(args))
     for w in answer.warnings:
         print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     r = answer.to_json()
@@ -158,7 +172,7 @@ def cmd_evaluate(args) -> int:
                             sampler=args.sampler, noise=args.noise, per_class=args.per_class, method=args.method,
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
                             max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau,
-                            members=args.ensemble, mirror=args.mirror, completion=args.completion,
+                            members=args.ensemble, mirror=args.mirror, completion=_completion(args),
                             batched=args.batch)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     if "completion_paper" in metrics:               # the paper's rule on the same queries, beside

@@ -132,6 +132,21 @@ def test_evaluate_baselines_write_the_same_keys(trained, tmp_path, method, pose,
         assert m["accuracy"] == 1.0
 
 
+def test_evaluate_under_another_threshold_records_it_and_the_paper_rule_takes_none(trained, tmp_path):
+    base = ("evaluate", "--model", str(trained / "model.hbeo"), "--dataset", "procedural", "--per-class", "1",
+            "--quiet")
+    out = run(*base, "--completion-threshold", "0.35", "--out", str(tmp_path / "t.json"))
+    assert out.returncode == 0, out.stderr
+    m = json.loads((tmp_path / "t.json").read_text())
+    assert m["completion_rule"] == {"name": "nonempty", "threshold": 0.35, "fallback": True}
+    assert m["completion"]["empty"] == 0
+    bad = run(*base, "--completion", "paper", "--completion-threshold", "0.35", "--out", str(tmp_path / "p.json"))
+    assert bad.returncode == 2 and "the paper's rule is back-projection >= 0.5" in bad.stderr
+    assert not (tmp_path / "p.json").exists()
+    bad = run(*base, "--completion-threshold", "1.5", "--out", str(tmp_path / "q.json"))
+    assert bad.returncode == 2 and "must be in (0, 1)" in bad.stderr and not (tmp_path / "q.json").exists()
+
+
 def test_evaluate_refuses_a_pose_setting_the_method_lacks(trained, tmp_path):
     out = run("evaluate", "--model", str(trained / "model.hbeo"), "--method", "voxcnn", "--pose", "3dof",
               "--out", str(tmp_path / "m.json"))

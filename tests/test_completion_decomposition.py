@@ -203,3 +203,16 @@ def test_the_whole_decomposition_on_a_stand_in_model():
     again, _ = D.decomposition(Model(), test, val, {**evals, "hbeo": never}, n_boot=20)
     cols = ["n", "mean_edt", "empty"]
     assert again[again["section"] == "completion"][cols].equals(table[table["section"] == "completion"][cols])
+
+
+def test_default_threshold_is_the_reference_runs_validation_choice():
+    """HBEO's default never-empty threshold is the one the ModelNet10 reference run's own validation scan chose
+    (its decomposition table: the last validation row), so the constant cannot drift from its evidence."""
+    from hbeo import config
+    csv = config.REPO_ROOT / "results" / "cpu-modelnet10-vox30" / "06_completion_decomposition.csv"
+    val = pd.read_csv(csv).query("section == 'validation'")
+    assert float(val.iloc[-1]["threshold"]) == C.NONEMPTY_THRESHOLD
+    scan = val[val["row"].str.startswith(D.SCAN_NONEMPTY)]
+    if len(scan):                                           # the rule's second version: its choice is the minimum
+        best = scan.loc[scan["mean_edt"].idxmin(), "threshold"]
+        assert float(best) == C.NONEMPTY_THRESHOLD

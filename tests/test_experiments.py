@@ -262,3 +262,29 @@ def test_a_tiny_spec_runs_at_the_ci_profile_and_tabulates(tmp_path, monkeypatch)
                                                        "chosen": False}]
     assert "| tiny | no | " in run.model_table.read_text()
     assert not (ROOT / "results" / "ci-tiny").exists()             # every path taken from the spec's repository
+
+
+def test_every_evaluate_command_gives_the_completion_rule_its_file_records():
+    """Run again today, a spec's HBEO evaluation completes by the rule its committed file was made with: files made
+    under the paper's rule (no ``completion_rule`` key) need ``--completion paper`` now that the default is the
+    never-empty rule, and files made at an earlier default threshold pin it (``--completion-threshold``)."""
+    import json
+    from hbeo.cli import _completion, _join_list_values, build_parser
+    from hbeo.model.completion_rule import DEFAULT, of_record, rule
+    parser = build_parser()
+    checked = 0
+    for e in ex.load_all():
+        for phase, c in e.all_commands():
+            argv = ex.command_argv(c)
+            if argv[1:3] != ["-m", "hbeo"] or argv[3] != "evaluate":
+                continue
+            args = parser.parse_args(_join_list_values(argv[3:]))
+            out = ROOT / args.out
+            if args.method != "hbeo" or not out.is_file():
+                continue
+            given = _completion(args)
+            wants = rule(DEFAULT if given is None else given)
+            made = of_record(json.loads(out.read_text()).get("completion_rule"))
+            assert wants == made, f"{e.path.name}: {c}\n completes by {wants}, its file {args.out} by {made}"
+            checked += 1
+    assert checked > 20
