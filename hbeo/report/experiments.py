@@ -56,6 +56,8 @@ STATUSES = {
     "superseded": "chosen or in use at its time, replaced since by a later row",
     "not chosen": "its rule was not met, or it was measured beside a rule: no test evaluation",
     "baseline": "another method, shown for its spread over training seeds",
+    "paper": "the paper's method as written, beside the chosen recipe: trained once, the validation objects and the "
+             "test split evaluated once each; no choice rests on it",
     "bar": "a reference figure for the targets table, not a model-table row",
     "pending": "its rule written and committed before any result; not yet run or not finished: no table row (its "
                "test commands, where it has any, run only once it is chosen or is the paper's row)",
