@@ -11,8 +11,8 @@ the bool (30, 30, 30) completion of it:
 ``nonempty`` (:data:`NONEMPTY`, :data:`DEFAULT`: what HBEO answers unless asked otherwise)
     voxels with o_hat >= :data:`NONEMPTY_THRESHOLD`, a threshold chosen on validation queries (never test ones:
     :func:`hbeo.evaluation.decompose.choose_threshold`, the lowest mean e' of this rule over a fixed scan on the
-    reference model's validation views); when no voxel reaches it, the k voxels of largest o_hat, k the occupancy of the
-    predicted class's mean shape (the sum of its mean field clipped to [0, 1], rounded, at least 1:
+    reference model's validation views); when no voxel reaches it, the k voxels of largest o_hat, k the occupancy
+    of the predicted class's mean shape (the sum of its mean field clipped to [0, 1], rounded, at least 1:
     :func:`class_occupancy`). Every answer then has at least one filled voxel. A deviation from the paper;
     an HBEO evaluation under it also scores the paper's rule on the same queries (``completion_paper``).
 

@@ -138,11 +138,10 @@ def _validation(val: pd.DataFrame, chosen: float) -> list[str]:
 
     def cell(d, t, f):
         return f(d.loc[t]) if t in d.index else "–"
-    ci = lambda r: f"{r.mean_edt:.0f} [{r.mean_edt_low:.0f}, {r.mean_edt_high:.0f}]"
     cols = {"threshold": [f"{t:g}" + (" (chosen)" if t == chosen else "") for t in ts],
             "n": [str(int((paper.loc[t] if t in paper.index else never.loc[t])["n"])) for t in ts]}
     for who, d in (("paper's rule", paper), ("never empty", never)):
-        cols[f"{who}: mean e' [95 %]"] = [cell(d, t, ci) for t in ts]
+        cols[f"{who}: mean e' [95 %]"] = [cell(d, t, _ci) for t in ts]
         cols[f"{who}: median e'"] = [cell(d, t, lambda r: f"{r.median_edt:.0f}") for t in ts]
         cols[f"{who}: mean IoU"] = [cell(d, t, lambda r: f"{r.mean_iou:.3f}") for t in ts]
         if d is paper:
