@@ -31,7 +31,7 @@ from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.limits import check_in_memory, check_workers
 from hbeo.render.views import RenderSettings, check_grid_records
-from hbeo.rundir import RunDir, failure_summary
+from hbeo.rundir import BASELINE_FILES, RunDir, failure_summary
 from hbeo.storage import atomic_text, json_text
 from hbeo.subspace.basis import ObjectSubspace
 
@@ -352,7 +352,16 @@ class Run:
     def baseline(self, name: str, progress: bool = True, **kw):
         """Baseline ``name`` (``beo``, ``icp``, ``voxcnn``) of this run: loaded, or fitted/trained beside the
         model when missing (:func:`hbeo.baselines.methods.load_method`; the 3-D CNN with the run's
-        :attr:`training_seed`)."""
-        from hbeo.baselines.methods import load_method
+        :attr:`training_seed`), after what fitting it reads is read or made here first (the training grids; BEO's
+        subspace; the 3-D CNN's rendered training set), so a later notebook runs alone in a folder that holds only
+        the committed files."""
+        from hbeo.baselines.methods import check_method, load_method
+        check_method(name, None)
+        if name in BASELINE_FILES and not self.dir.baseline(name).exists():
+            self.grids(progress=progress)
+            if name == "beo":
+                self.subspace(progress)
+            elif name == "voxcnn":
+                self.renders("train", progress=progress)
         return load_method(name, self.dir, self.profile, progress=progress, seed=self.training_seed, **kw)
 

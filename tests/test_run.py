@@ -82,3 +82,20 @@ def test_train_options_fill_the_recipe_from_the_profile_and_report_what_changed(
                               "view": {"recenter": True, "ref_distance": 1.7}}
     with pytest.raises(Exception):
         opts.seed = 4                                   # frozen: one set of options per training
+
+
+def test_a_missing_baseline_is_fitted_in_a_folder_that_holds_only_the_committed_files(ci_grids, ci_run, copy_run,
+                                                                                       tmp_path):
+    """A committed run folder has the model and the ICP file but no grids or subspace: a later notebook asking for a
+    baseline that is missing there makes what fitting it reads (here the training grids, then BEO's subspace)
+    instead of failing on the absent grid file."""
+    folder = copy_run(ci_run, tmp_path / "run", names=[])
+    run = Run.open("ci", "procedural", folder.path)
+    assert not folder.grids("train").exists() and not folder.subspace.exists()
+    icp = run.baseline("icp", progress=False)
+    assert folder.baseline("icp").is_file() and folder.grids("train").exists() and not folder.subspace.exists()
+    assert icp is not None and (run.grids(progress=False)["train"].grids == ci_grids["train"].grids).all()
+    run.baseline("beo", progress=False)
+    assert folder.subspace.exists() and folder.baseline("beo").is_file()
+    with pytest.raises(ValueError, match="unknown method"):
+        run.baseline("nope")
