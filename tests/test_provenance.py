@@ -69,3 +69,25 @@ def test_notebook_06_runs_alone_in_an_empty_run_folder(tmp_path):
                         parameters={"profile": "ci", "dataset": "procedural", "out_dir": str(out)})
     run = RunDir(out)
     assert run.model.exists() and run.table("06_claims").exists() and run.figure("06_pose_error").exists()
+
+
+@pytest.mark.parametrize("ename, says", [("DataError", "fix what it names, then run again with RESUME=1"),
+                                         ("KeyError", "is a bug in hbeo")])
+def test_a_failing_notebook_is_named_with_its_cell_error_copy_and_what_to_do(tmp_path, monkeypatch, capsys, ename,
+                                                                            says):
+    """The run stops on the first failing notebook with one line naming it, the cell, the error and its executed
+    copy (no papermill traceback from deep inside), and says whether the input or hbeo is at fault."""
+    import papermill as pm
+    from hbeo import cli
+
+    def fail(nb, target, **kw):
+        raise pm.PapermillExecutionError(4, 4, "evals = ...", ename, "grids_train.npz: no such grid set file", [])
+    monkeypatch.setattr(pm, "execute_notebook", fail)
+    out = tmp_path / "run"
+    with pytest.raises(notebooks.NotebookFailed) as err:
+        notebooks.run_notebooks("ci", "procedural", out, only=["07"])
+    msg = str(err.value)
+    assert msg.startswith(f"notebook 07_runtime stopped in cell 4: {ename}: grids_train.npz: no such grid set file")
+    assert str(RunDir(out).notebook("07_runtime")) in msg and says in msg
+    assert cli.main(["reproduce", "--profile", "ci", "--dataset", "procedural", "--out", str(out), "--only", "07"]) == 2
+    assert capsys.readouterr().err.startswith(f"error: notebook 07_runtime stopped in cell 4: {ename}")

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from hbeo import config
+from hbeo.errors import HBEOError
 from hbeo.progress import ProgressEcho
 from hbeo.report.provenance import write_manifest
 from hbeo.rundir import RunDir
@@ -36,6 +37,28 @@ def notebooks(only=None) -> list[Path]:
     return nbs
 
 
+#: the errors a notebook stops on for its input (a file, a setting), not for a defect of hbeo
+INPUT_ERRORS = ("DataError", "HBEOError", "ValueError", "FileNotFoundError", "PermissionError", "MemoryError")
+
+
+class NotebookFailed(HBEOError):
+    """A numbered notebook stopped on an error: which one, in which cell, the error's name and message, where its
+    executed copy (with the whole traceback) is, and what to do next: fix the input it names and go on with
+    ``RESUME=1`` (finished stages are skipped), or report an error that is not about the input as a bug."""
+
+    def __init__(self, name: str, copy, cell, ename: str, evalue: str):
+        self.name, self.copy, self.cell, self.ename, self.evalue = name, Path(copy), cell, ename, evalue
+        if ename in INPUT_ERRORS:
+            then = ("fix what it names, then run again with RESUME=1 (`make reproduce ... RESUME=1`: what finished, "
+                    "grids, renderings, models and evaluations, is read, not made again; training resumes from its "
+                    "checkpoint)")
+        else:
+            then = (f"an unexpected {ename} inside a notebook is a bug in hbeo; please report it with the command "
+                    "and that copy on the project's issue tracker")
+        super().__init__(f"notebook {name} stopped in cell {cell}: {ename}: {evalue}\n  the executed copy, with the "
+                         f"traceback: {self.copy}\n  {then}")
+
+
 def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=None, only=None,
                   fresh: bool = False, training_seed: int = 0) -> list[Path]:
     """Execute notebooks in order with parameters ``profile``, ``dataset``, ``out_dir`` and, when not 0,
@@ -46,9 +69,9 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     Each executed copy is written into the run folder under the notebook's name; a progress line
     per notebook says what runs and how long it took, and while it runs the terminal shows its latest
     progress bar (step, items done, time estimate; :class:`hbeo.progress.ProgressEcho`); the run's ``manifest.json`` is updated after
-    each. The first failing notebook stops the run (papermill raises, and the failing copy shows
-    where). ``fresh``: first remove what earlier runs trained or evaluated there (:func:`clear_products`),
-    so every model is trained inside this run. After the last notebook, the run's
+    each. The first failing notebook stops the run: :class:`NotebookFailed` says which, in which cell, the error
+    and what to do, and the failing copy shows the traceback. ``fresh``: first remove what earlier runs trained or
+    evaluated there (:func:`clear_products`), so every model is trained inside this run. After the last notebook, the run's
     ``REPRODUCTION.md`` is written (:func:`hbeo.report.reproduction_md.write_reproduction`; for the
     reference run, :data:`~hbeo.report.reproduction_md.REFERENCE_RUN`, also ``paper/REPRODUCTION.md``).
     Returns the executed copies.
@@ -75,7 +98,10 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         t0 = time.perf_counter()
         with ProgressEcho(Path(tempfile.gettempdir()) / f"hbeo-progress-{os.getpid()}.txt",
                           f"[hbeo {k}/{len(nbs)}] {nb.stem}"):
-            pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS), parameters=params, progress_bar=False)
+            try:
+                pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS), parameters=params, progress_bar=False)
+            except pm.PapermillExecutionError as err:
+                raise NotebookFailed(nb.stem, target, err.exec_count, err.ename, err.evalue) from None
         sec = time.perf_counter() - t0
         write_manifest(run, profile, dataset, {nb.stem: round(sec, 1)}, training_seed=training_seed)
         print(f"[hbeo {k}/{len(nbs)}] {nb.name} done in {sec / 60:.1f} min "
