@@ -15,6 +15,11 @@
 #      docs/history and turns its specs into the previous reference's (maintainer/README.md); then the run folder
 #      copied over without deleting (the ablations' files stay), the new reference's specs written (the target
 #      roles the script printed go to them), and step 3 again in the checkout.
+# When only the evaluation changed, not the models (e.g. HBEO's default completion rule): notebooks 05-08 alone from
+# a clean clone at a tagged commit, `python -m hbeo reproduce --profile cpu --dataset $D --only 05 06 07 08` (the
+# committed model.hbeo, icp.npz and voxcnn.hbeo are read; grids, subspace and BEO are made again), the seed runs'
+# eval_hbeo_3dof.json and eval_hbeo-verify_3dof.json made again at that commit
+# (hbeo.evaluation.protocol.evaluation), `python -m hbeo report --seeds R R-seed1 R-seed2`, then steps 2-3.
 # A run cut off before its end goes on with `make reproduce PROFILE=cpu DATASET=$D RESUME=1` (finished stages
 # are skipped, the training resumes from its checkpoint), then SKIP_RUN=1.
 # Usage: bash maintainer/reference_run.sh [PY]   (steps 2-3 only with SKIP_RUN=1)
