@@ -86,7 +86,7 @@ def test_train_options_fill_the_recipe_from_the_profile_and_report_what_changed(
 
 def test_a_missing_baseline_is_fitted_in_a_folder_that_holds_only_the_committed_files(ci_grids, ci_run, copy_run,
                                                                                        tmp_path):
-    """A committed run folder has the model and the ICP file but no grids or subspace: a later notebook asking for a
+    """A committed run folder holds no grids or subspace (they are not committed): a later notebook asking for a
     baseline that is missing there makes what fitting it reads (here the training grids, then BEO's subspace)
     instead of failing on the absent grid file."""
     folder = copy_run(ci_run, tmp_path / "run", names=[])

@@ -71,8 +71,8 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     progress bar (step, items done, time estimate; :class:`hbeo.progress.ProgressEcho`); the run's ``manifest.json`` is updated after
     each. The first failing notebook stops the run: :class:`NotebookFailed` says which, in which cell, the error
     and what to do, and the failing copy shows the traceback. ``fresh``: first remove what earlier runs trained or
-    evaluated there (:func:`clear_products`), so every model is trained inside this run. After the last notebook, the run's
-    ``REPRODUCTION.md`` is written (:func:`hbeo.report.reproduction_md.write_reproduction`; for the
+    evaluated there (:func:`clear_products`), so every model is trained inside this run. After the last notebook,
+    the run's ``REPRODUCTION.md`` is written (:func:`hbeo.report.reproduction_md.write_reproduction`; for the
     reference run, :data:`~hbeo.report.reproduction_md.REFERENCE_RUN`, also ``paper/REPRODUCTION.md``).
     Returns the executed copies.
     """
