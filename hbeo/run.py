@@ -355,8 +355,7 @@ class Run:
         :attr:`training_seed`), after what fitting it reads is read or made here first (the training grids; BEO's
         subspace; the 3-D CNN's rendered training set), so a later notebook runs alone in a folder that holds only
         the committed files."""
-        from hbeo.baselines.methods import check_method, load_method
-        check_method(name, None)
+        from hbeo.baselines.methods import load_method
         if name in BASELINE_FILES and not self.dir.baseline(name).exists():
             self.grids(progress=progress)
             if name == "beo":
