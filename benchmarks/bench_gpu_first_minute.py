@@ -34,7 +34,9 @@ beside the tree (sized for about two minutes; not yet run on a GPU)::
     PYTHONPATH=/tmp/site HBEO_VOX30=.device/modelnet10_vox30.npz timeout 420 \
         python3 benchmarks/bench_gpu_first_minute.py --out "$OUT/first_minute.json"
 
-``HBEO_GRIDCAST=torch`` keeps training on the torch march should the fused one disagree there.
+``HBEO_GRIDCAST=torch`` keeps training on the torch march should the fused one disagree there. In a lease the
+device job runs this script first (``maintainer/device_job.py --first-minute SECONDS``: its JSON comes back
+inside ``lease.json``, and the job sets ``HBEO_GRIDCAST=torch`` itself when the agreement stage fails its rule).
 
 ``--cpu-check``: the same stages on a CPU, about 20 s on a loaded 2-core VM (the ``ci`` profile's 80x60
 images and network, one grid a class, batch 4, the fused kernel under Triton's interpreter,

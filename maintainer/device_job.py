@@ -26,7 +26,11 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    steps chosen (its ``steps``: those trained, fewer when the profile plans fewer). A restarted worker keeps the step count it chose first. The
    evaluation runs HBEO's network on the GPU (``cuda`` when there is one; the metrics' ``device`` says so), a chunk
    of views per network call (``batched``: the same answers as one view at a time).
-2. It waits for the worker until it finishes or ``--wait`` runs out (then it says so: call again, on the
+   With ``--first-minute SECONDS`` a fresh job first runs ``benchmarks/bench_gpu_first_minute.py`` in the
+   foreground for at most that long (``--cpu-check`` where there is no GPU); its figures go into ``lease.json``'s
+   ``first_minute``, the worker's ``--budget`` is what is left of the job's, and the marcher the worker trains
+   with follows the benchmark's agreement stage (:func:`marcher_choice`, a rule fixed before any GPU result).
+2. It waits for the worker until it finishes or ``--wait`` runs out (counted from the call's start) (then it says so: call again, on the
    same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
    ``eval_hbeo_3dof.json``, the training curves ``train_log.csv``, ``provenance.json``, the worker's
@@ -62,6 +66,14 @@ PART_BYTES = 15 * 2**20          # one file back from the device: at most 16 MiB
 MAX_PARTS = 3                    # beside 5 other files: 8 files and under 64 MiB in all
 WARMUP_STEPS = 5                 # --budget: untimed training steps before the timed calibration
 STATE = "job_state.json"         # the worker's stages, written atomically by the worker
+FIRST_MINUTE = "first_minute.json"   # --first-minute: the benchmark's figures, in the run folder
+#: --first-minute's rule for training on the fused marcher (hbeo.render.fused) rather than the torch one, fixed
+#: before any GPU result: the agreement stage ran without error on both marchers, at most this share of its
+#: pixels are hit by one marcher and missed by the other (1e-5: under one pixel an image at 320x240), and no
+#: depth that both hit differs by more than this (1 mm: below the float16 step the stored depth keeps, 2**-10 m
+#: from 1 m on, and far below the sensor noise).
+AGREE_MAX_FLIP_SHARE = 1e-5
+AGREE_MAX_DEPTH_M = 1e-3
 LOG = "job.log"
 
 
@@ -89,6 +101,58 @@ def _alive(pid: int | None) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"
     except OSError:
         return True
+
+
+def marcher_choice(report: dict) -> dict:
+    """The marcher the worker trains with, from the first-minute benchmark's JSON (``report``):
+    ``{"gridcast": "auto" | "torch", "reason": ...}``. ``auto`` (GridCaster's default: the fused marcher on a
+    GPU where triton imports) only when the agreement stage meets :data:`AGREE_MAX_FLIP_SHARE` and
+    :data:`AGREE_MAX_DEPTH_M`; else ``torch``, the reference march, and the reason says why."""
+    errors = report.get("errors") or {}
+    for stage in ("setup", "compile", "agreement"):
+        if stage in errors:
+            return {"gridcast": "torch", "reason": f"the {stage} stage failed: {errors[stage]}"}
+    a = report.get("agreement") or {}
+    if not a.get("pixels"):
+        return {"gridcast": "torch", "reason": "the agreement stage did not run (cut by its time limit?)"}
+    flips = a["hit_torch_only"] + a["hit_triton_only"]
+    share = flips / a["pixels"]
+    said = (f"{flips} of {a['pixels']} pixels hit by one marcher only (share {share:.2g}, at most "
+            f"{AGREE_MAX_FLIP_SHARE:g}), largest depth difference {a['max_abs_diff_m']:.3g} m (at most "
+            f"{AGREE_MAX_DEPTH_M:g})")
+    if share > AGREE_MAX_FLIP_SHARE or a["max_abs_diff_m"] > AGREE_MAX_DEPTH_M:
+        return {"gridcast": "torch", "reason": "the marchers disagree: " + said}
+    return {"gridcast": "auto", "reason": "the marchers agree: " + said}
+
+
+def first_minute(args) -> dict:
+    """Run the first-minute benchmark for at most ``args.first_minute`` seconds (its JSON is rewritten after
+    every stage, so a cut run keeps what it measured) and choose the worker's marcher from it."""
+    import torch
+    out = Path(args.run) / FIRST_MINUTE
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_gpu_first_minute.py"), "--out", str(out),
+           "--profile", args.profile]
+    if not torch.cuda.is_available():
+        cmd.append("--cpu-check")
+    t0 = time.perf_counter()
+    print(f"[job] first minute: {' '.join(cmd[1:])} (at most {args.first_minute:.0f} s)", flush=True)
+    with open(Path(args.run) / LOG, "ab") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            code = proc.wait(timeout=args.first_minute)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            code = "timeout"
+    report = _read_json(out)
+    done = {"seconds": round(time.perf_counter() - t0, 1), "limit_s": args.first_minute, "exit": code,
+            "command": " ".join(["python", *[str(Path(c).relative_to(ROOT)) if c.startswith(str(ROOT)) else c
+                                             for c in cmd[1:]]]),
+            **marcher_choice(report), "report": report}
+    print(f"[job] first minute: {done['seconds']} s, stages {report.get('stages_done')}; marcher "
+          f"{done['gridcast']}: {done['reason']}", flush=True)
+    return done
 
 
 def device_name() -> str:
@@ -254,20 +318,26 @@ def worker(args) -> int:
     return 0
 
 
-def start_worker(args) -> int:
+def start_worker(args, state: dict) -> int:
+    """The worker, in a new process session; with ``state``'s first minute, on the marcher it chose and with
+    the budget that is left of the job's."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--profile", args.profile,
            "--dataset", args.dataset, "--run", str(args.run), *([] if args.round_bf16 else ["--no-round"]),
            "--checkpoint-every", str(args.checkpoint_every)]
     if args.max_steps:
         cmd += ["--max-steps", str(args.max_steps)]
+    fm = state.get("first_minute") or {}
     if args.budget:
-        cmd += ["--budget", str(args.budget), "--calibrate", str(args.calibrate), "--eval-reserve", str(args.eval_reserve)]
+        left = max(args.budget - fm.get("seconds", 0.0), 1.0)
+        cmd += ["--budget", f"{left:.1f}", "--calibrate", str(args.calibrate), "--eval-reserve", str(args.eval_reserve)]
     for k, v in train_flags(args).items():
         cmd += ["--" + k.replace("_", "-"), str(v)]
     cmd += ["--split", args.split]
     log = open(Path(args.run) / LOG, "ab")
-    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    if fm.get("gridcast") == "torch":
+        env["HBEO_GRIDCAST"] = "torch"
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, cwd=ROOT, env=env)
     return proc.pid
 
 
@@ -331,10 +401,16 @@ def main(argv=None) -> int:
                    help="stream/torch: processes that draw the next march's poses ahead (default: up to 8 on a GPU)")
     g.add_argument("--loss-weights", metavar="C,O,P", help="gamma_c,gamma_o,gamma_p of the loss (1,1,1)")
     g.add_argument("--fc", metavar="W1,W2,W3", help="widths of HBEONet's three shared layers (the profile's)")
+    p.add_argument("--first-minute", type=float, default=0, metavar="SECONDS",
+                   help="a fresh job first runs benchmarks/bench_gpu_first_minute.py for at most SECONDS, in the "
+                        "foreground (figures in lease.json's first_minute; the worker's marcher chosen from its "
+                        "agreement; --budget then counts it); 0: not (0)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.budget is not None and not args.budget > 0:
         p.error(f"--budget must be a positive number of seconds, got {args.budget}")
+    if not args.first_minute >= 0:
+        p.error(f"--first-minute must be >= 0 seconds, got {args.first_minute}")
     if args.calibrate < 1 or not args.eval_reserve >= 0:
         p.error("--calibrate must be >= 1 and --eval-reserve >= 0")
     if (args.epochs is not None and args.epochs < 1) or (args.seed is not None and args.seed < 0):
@@ -353,12 +429,15 @@ def main(argv=None) -> int:
             state = _read_json(args.run / STATE)
             _write_json(args.run / STATE, {**state, "status": "failed", "error": f"{type(err).__name__}: {err}"})
             raise
-    state = _read_json(args.run / STATE)
     t0 = time.monotonic()
+    state = _read_json(args.run / STATE)
     if state.get("status") != "done" and not _alive(state.get("pid")):
         if state.get("status") == "running":
             print(f"[job] the worker {state.get('pid')} is gone: restarting it from its checkpoint", flush=True)
-        pid = start_worker(args)
+        elif args.first_minute and "first_minute" not in state and not RunDir(args.run).model.exists():
+            state["first_minute"] = first_minute(args)
+            _write_json(args.run / STATE, state)
+        pid = start_worker(args, state)
         _write_json(args.run / STATE, {**state, "pid": pid, "status": "starting"})
         print(f"[job] worker {pid} started; log: {args.run / LOG}", flush=True)
     while True:

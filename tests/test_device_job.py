@@ -25,6 +25,13 @@ def _job(run, out, *extra, wait=600):
                           capture_output=True, text=True, env=env, timeout=900)
 
 
+def _device_job_module():
+    spec = importlib.util.spec_from_file_location("device_job_script", JOB)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.mark.slow
 def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_under_the_limits(tmp_path):
     run, out = tmp_path / "run", tmp_path / "out"
@@ -66,9 +73,7 @@ def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_u
 
 
 def test_device_job_gzips_and_splits_a_model_over_15_mib_into_parts(tmp_path, monkeypatch):
-    spec = importlib.util.spec_from_file_location("device_job_script", JOB)
-    device_job = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(device_job)
+    device_job = _device_job_module()
     run = tmp_path / "run"
     run.mkdir()
     blob = os.urandom(2 * device_job.PART_BYTES + 123)
@@ -126,8 +131,54 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
     assert bad.returncode == 2 and "--budget" in bad.stderr
 
 
+def test_the_marcher_is_the_fused_one_only_when_the_first_minute_found_the_two_agree():
+    choose = _device_job_module().marcher_choice
+    agree = {"pixels": 19_660_800, "hit_torch_only": 0, "hit_triton_only": 0, "max_abs_diff_m": 0.0}
+    ok = {"errors": {}, "agreement": agree}
+    assert choose(ok)["gridcast"] == "auto" and "agree" in choose(ok)["reason"]
+    few = {"errors": {}, "agreement": {**agree, "hit_torch_only": 100, "hit_triton_only": 96, "max_abs_diff_m": 9e-4}}
+    assert choose(few)["gridcast"] == "auto"                      # 196 flips: a share of 1.0e-5, 0.9 mm
+    for bad, word in (({**agree, "hit_triton_only": 197}, "disagree"), ({**agree, "max_abs_diff_m": 2e-3}, "disagree"),
+                      ({}, "did not run")):
+        got = choose({"errors": {}, "agreement": bad})
+        assert got["gridcast"] == "torch" and word in got["reason"], (bad, got)
+    for stage in ("setup", "compile", "agreement"):
+        got = choose({"errors": {stage: "RuntimeError: no kernel"}, "agreement": agree})
+        assert got["gridcast"] == "torch" and stage in got["reason"] and "no kernel" in got["reason"]
+    assert choose({"errors": {"poses": "cut"}, "agreement": agree})["gridcast"] == "auto"   # a later stage: no matter
+    assert choose({})["gridcast"] == "torch"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("triton") is None, reason="triton not installed")
+def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_within_what_is_left(tmp_path):
+    run, out = tmp_path / "run", tmp_path / "out"
+    r = _job(run, out, "--first-minute", "240", "--budget", "400", "--calibrate", "2", "--eval-reserve", "20",
+             "--max-steps", "4")
+    assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
+    lease = json.loads((out / "lease.json").read_text())
+    fm = lease["first_minute"]
+    assert fm["exit"] == 0 and fm["report"]["stages_done"][:3] == ["setup", "compile", "agreement"]
+    assert fm["report"]["setup"]["cpu_check"] and fm["gridcast"] == "auto"      # the interpreter: bit-equal
+    assert 0 < fm["seconds"] < 240 and "bench_gpu_first_minute.py" in fm["command"]
+    assert abs(lease["budget"]["seconds"] - (400 - fm["seconds"])) < 0.2    # the worker's budget: what was left
+    assert len(list(out.iterdir())) <= 8 and not (out / "first_minute.json").exists()   # inside lease.json
+    again = _job(run, tmp_path / "out2", "--first-minute", "240")        # finished: no second benchmark
+    assert again.returncode == 0 and "first minute" not in again.stdout
+    cut = _job(tmp_path / "run2", tmp_path / "out3", "--first-minute", "3", "--max-steps", "2", "--wait", "0")
+    lease = json.loads((tmp_path / "out3" / "lease.json").read_text())       # cut short: what it had, torch
+    assert lease["first_minute"]["exit"] == "timeout" and lease["first_minute"]["gridcast"] == "torch", lease
+    assert cut.returncode in (0, 3)
+    pid = json.loads((tmp_path / "run2" / "job_state.json").read_text()).get("pid")
+    if cut.returncode == 3 and pid:                      # the worker it left running
+        try:
+            os.killpg(os.getpgid(pid), signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def test_device_job_refuses_bad_training_flags(tmp_path):
-    for flags, word in ((("--epochs", "0"), "--epochs"), (("--seed", "-1"), "--seed"),
+    for flags, word in ((("--epochs", "0"), "--epochs"), (("--first-minute", "-1"), "--first-minute"), (("--seed", "-1"), "--seed"),
                         (("--class-balance", "some"), "--class-balance"), (("--split", "train"), "--split"),
                         (("--loss-weights", "1,1"), "--loss-weights"), (("--fc", "64,0,64"), "--fc")):
         r = _job(tmp_path / "run", tmp_path / "out", *flags)
