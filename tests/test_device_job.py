@@ -185,7 +185,7 @@ def test_device_job_refuses_bad_training_flags(tmp_path):
         assert r.returncode == 2 and word in r.stderr, (flags, r.stderr)
 
 
-def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_and_restore_tracks_them_again(tmp_path):
+def test_device_tree_slim_leaves_the_committed_results_and_history_behind_and_restore_tracks_them_again(tmp_path):
     import shutil
     repo = tmp_path / "repo"
     (repo / "maintainer").mkdir(parents=True)
@@ -193,7 +193,8 @@ def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_a
     # results/b/model.hbeo un-ignored by .gitignore, as results/quick-procedural/model.hbeo: an exclude line alone
     # would not keep it from travelling
     for f in ("results/a/model.hbeo", "results/b/model.hbeo", "results/a/table.csv", "results/a/01_x.ipynb",
-              "notebooks/01_x.ipynb", "hbeo/x.py", ".gitignore"):
+              "results/README.md", "docs/history/log.md", "docs/scale.md", "notebooks/01_x.ipynb", "hbeo/x.py",
+              ".gitignore"):
         (repo / f).parent.mkdir(parents=True, exist_ok=True)
         (repo / f).write_text("results/b/*.hbeo\n!results/b/model.hbeo\n" if f == ".gitignore" else f)
     git = lambda *a: subprocess.run(["git", "-C", str(repo), *a], capture_output=True, text=True, check=True).stdout
@@ -203,10 +204,16 @@ def test_device_tree_slim_leaves_the_model_files_and_executed_notebooks_behind_a
     run = lambda cmd: subprocess.run(["bash", str(repo / "maintainer" / "device_tree.sh"), cmd], capture_output=True, text=True)
     travels = lambda: set(git("ls-files").split()) | set(git("ls-files", "-o", "--exclude-standard").split())
     before = travels()
-    assert run("slim").returncode == 0
-    assert travels() == before - {"results/a/model.hbeo", "results/b/model.hbeo", "results/a/01_x.ipynb"}
+    slim = run("slim")
+    assert slim.returncode == 0 and "to travel now: 0 MiB" in slim.stdout, slim.stdout + slim.stderr
+    assert travels() == before - {"results/a/model.hbeo", "results/b/model.hbeo", "results/a/01_x.ipynb",
+                                  "results/a/table.csv", "docs/history/log.md"}
     assert (repo / ".device-aside/results/a/model.hbeo").read_text() == "results/a/model.hbeo"   # kept aside
     assert run("slim").returncode == 2                              # twice: refused
+    assert run("restore").returncode == 0
+    over = subprocess.run(["bash", str(repo / "maintainer" / "device_tree.sh"), "slim"], capture_output=True,
+                          text=True, env={**os.environ, "LIMIT_MIB": "0"})   # what is left still too big: said
+    assert over.returncode == 3 and "still over 0 MiB" in over.stderr
     assert run("restore").returncode == 0
     assert travels() == before and git("status", "--porcelain") == "" and not (repo / ".device-aside").exists()
     assert (repo / "results/b/model.hbeo").read_text() == "results/b/model.hbeo"
