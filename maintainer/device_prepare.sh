@@ -33,8 +33,8 @@ if git rev-parse --git-dir > /dev/null 2>&1; then
   limit=${LIMIT_MIB:-64}                     # the device tool's; a test sets another to reach the branch below
   echo "to travel: $((total / 1048576)) MiB (working tree $((tree / 1048576)) MiB + $DEST $((dest / 1048576)) MiB; limit $limit MiB)"
   if [ "$total" -gt $((limit * 1048576)) ]; then
-    echo "over the device tool's $limit MiB: run 'bash maintainer/device_tree.sh slim' (the committed model files stay" \
-         "behind; 'restore' after the call). The largest files that travel:" >&2
+    echo "over the device tool's $limit MiB: run 'bash maintainer/device_tree.sh slim' (the committed results and" \
+         "docs/history stay behind; 'restore' after the call). The largest files that travel:" >&2
     { git ls-files -z; git ls-files -z -o --exclude-standard; } | du -b --files0-from=- 2>/dev/null | sort -rn | awk 'NR <= 5' >&2   # awk reads it all: head would end sort with SIGPIPE (exit 141 under pipefail)
     exit 3
   fi
