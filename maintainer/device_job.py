@@ -309,7 +309,8 @@ def worker(args) -> int:
     state.update(status="done", profile=prof.name, dataset=run.dataset.name, steps=steps, split=args.split,
                  train_options=train_flags(args),
                  batch_size=prof.recipe.batch_size, images_seen=steps * prof.recipe.batch_size,
-                 image_size=list(prof.data.image_size), train_data=prof.data.train_data,
+                 image_size=list(prof.data.image_size),
+                 train_data=train_flags(args).get("data", prof.data.train_data),
                  provenance=_read_json(prov),
                  metrics=summary(metrics),
                  command=" ".join(["python", str(Path(sys.argv[0]).resolve().relative_to(ROOT)), *sys.argv[1:]]))

@@ -18,8 +18,29 @@ ROOT = Path(__file__).resolve().parent.parent
 JOB = ROOT / "maintainer" / "device_job.py"
 
 
-def _job(run, out, *extra, wait=600):
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+#: Python packages hbeo can use that the lent GPU machine's image lacks (/work/.library/device/KINDS.md, read
+#: 2026-11-17; trimesh and pooch travel as wheels, maintainer/device_prepare.sh): the device job must not need them.
+ABSENT_ON_DEVICE = ("pyrender", "embreex", "dask", "distributed", "plotly", "papermill", "nbformat", "nbconvert",
+                    "latex2mathml", "IPython", "OpenGL", "jupyterlab", "nbval")
+SITECUSTOMIZE = f'''import importlib.abc, sys
+class _Absent(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {set(ABSENT_ON_DEVICE)!r}:
+            raise ModuleNotFoundError(f"No module named {{name!r}} (not on the device)", name=name)
+sys.meta_path.insert(0, _Absent())
+'''
+
+
+def _device_like(tmp_path) -> str:
+    """A PYTHONPATH entry whose sitecustomize makes :data:`ABSENT_ON_DEVICE` unimportable, as on the device."""
+    d = tmp_path / "device_like"
+    d.mkdir(exist_ok=True)
+    (d / "sitecustomize.py").write_text(SITECUSTOMIZE)
+    return str(d)
+
+
+def _job(run, out, *extra, wait=600, pythonpath=()):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*pythonpath, str(ROOT)])}
     return subprocess.run([sys.executable, str(JOB), "--profile", "ci", "--dataset", "procedural", "--run", str(run),
                            "--out", str(out), "--wait", str(wait), "--checkpoint-every", "5", *extra],
                           capture_output=True, text=True, env=env, timeout=900)
@@ -151,12 +172,18 @@ def test_the_marcher_is_the_fused_one_only_when_the_first_minute_found_the_two_a
 
 @pytest.mark.slow
 @pytest.mark.skipif(importlib.util.find_spec("triton") is None, reason="triton not installed")
-def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_within_what_is_left(tmp_path):
+def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_within_what_is_left(tmp_path, vox30_file):
+    probe = subprocess.run([sys.executable, "-c", "import pyrender"], capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": _device_like(tmp_path)})
+    assert "not on the device" in probe.stderr                # the device-like path does hide those packages
     run, out = tmp_path / "run", tmp_path / "out"
+    # as on the device: its packages only, the fresh views streamed and ray-marched in torch (the full profile's)
     r = _job(run, out, "--first-minute", "240", "--budget", "400", "--calibrate", "2", "--eval-reserve", "20",
-             "--max-steps", "4")
+             "--max-steps", "4", "--dataset", "modelnet10-vox30", "--data", "stream", "--backend", "torch",
+             pythonpath=[_device_like(tmp_path)])
     assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
     lease = json.loads((out / "lease.json").read_text())
+    assert lease["train_data"] == "stream" and "not on the device" not in (run / "job.log").read_text()
     fm = lease["first_minute"]
     assert fm["exit"] == 0 and fm["report"]["stages_done"][:3] == ["setup", "compile", "agreement"]
     assert fm["report"]["setup"]["cpu_check"] and fm["gridcast"] == "auto"      # the interpreter: bit-equal
