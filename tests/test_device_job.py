@@ -3,6 +3,7 @@ the same scripts a lent GPU machine runs. A call that runs out of waiting leaves
 a later call waits on; a worker killed mid-training is restarted from its checkpoint; the packed files fit the
 device tool's transfer limits (at most 8 files, 16 MiB each) and the model parts join to the run's model."""
 import gzip
+import hashlib
 import importlib.util
 import json
 import os
@@ -46,11 +47,16 @@ def _job(run, out, *extra, wait=600, pythonpath=()):
                           capture_output=True, text=True, env=env, timeout=900)
 
 
-def _device_job_module():
-    spec = importlib.util.spec_from_file_location("device_job_script", JOB)
+def _script_module(name: str):
+    """A maintainer script as a module (``device_job``, ``device_land``)."""
+    spec = importlib.util.spec_from_file_location(f"{name}_script", ROOT / "maintainer" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _device_job_module():
+    return _script_module("device_job")
 
 
 @pytest.mark.slow
@@ -190,6 +196,17 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     assert 0 < fm["seconds"] < 240 and "bench_gpu_first_minute.py" in fm["command"]
     assert abs(lease["budget"]["seconds"] - (400 - fm["seconds"])) < 0.2    # the worker's budget: what was left
     assert len(list(out.iterdir())) <= 8 and not (out / "first_minute.json").exists()   # inside lease.json
+    # what came back lands: checked, put in a run folder, scored again on this CPU (the same CPU: identical)
+    land = _script_module("device_land")
+    landed = land.land(out, tmp_path / "landed", per_class=1)
+    assert (landed / "model.hbeo").read_bytes() == (run / "model.hbeo").read_bytes()
+    re = json.loads((landed / "rescore_cpu.json").read_text())
+    assert re["n_queries"] == 10 and re["class_differs"] == 0 and re["pose_max_abs_diff_deg"] == 0
+    assert re["iou_max_abs_diff"] == re["edt_max_rel_diff"] == 0
+    md = (landed / "REPRODUCTION.md").read_text()
+    assert "stream data" in md and "marcher `auto`" in md and "| class mean accuracy | 30 / 30 |" in md
+    assert json.loads((landed / "first_minute.json").read_text()) == fm["report"]
+    assert (landed / "train_model" / "train_log.csv").exists()
     again = _job(run, tmp_path / "out2", "--first-minute", "240")        # finished: no second benchmark
     assert again.returncode == 0 and "first minute" not in again.stdout
     cut = _job(tmp_path / "run2", tmp_path / "out3", "--first-minute", "3", "--max-steps", "2", "--wait", "0")
@@ -202,6 +219,40 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
             os.killpg(os.getpgid(pid), signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def test_device_land_lands_nothing_that_did_not_come_back_whole(tmp_path, capsys):
+    land = _script_module("device_land")
+    blob = os.urandom(40_000)
+    packed = gzip.compress(blob)
+    sha = hashlib.sha256(blob).hexdigest()
+
+    def came_back(name, lease=None, parts=(packed[:20_000], packed[20_000:]), model_sha=sha[:16]):
+        src = tmp_path / name
+        src.mkdir()
+        (src / "lease.json").write_text(json.dumps({"status": "done", "split": "test", "model_sha256": sha,
+                                                    "model_bytes": len(blob), **(lease or {})}))
+        for i, part in enumerate(parts):
+            (src / f"model.hbeo.gz.part{i:02d}").write_bytes(part)
+        (src / "eval_hbeo_3dof.json").write_text(json.dumps({"request": {"model_sha256": model_sha}, "n_queries": 2,
+                                                             "per_query": {"pred": ["bed", "sofa"]}}))
+        return src
+
+    assert land.check(came_back("whole"))["model_bytes"] == blob
+    for name, kw, words in (("running", {"lease": {"status": "running"}}, ("lease.json", "'running'")),
+                            ("val", {"lease": {"split": "val"}}, ("lease.json", "val split")),
+                            ("other", {"lease": {"model_sha256": "0" * 64}}, ("model.hbeo.gz.part*", "SHA-256")),
+                            ("cut", {"parts": (packed[:20_000],)}, ("model.hbeo.gz.part*", "do not gunzip")),
+                            ("none", {"parts": ()}, ("no model.hbeo.gz.part*",)),
+                            ("scored", {"model_sha": "f" * 16}, ("eval_hbeo_3dof.json", "scored the model"))):
+        src = came_back(name, **kw)
+        with pytest.raises(land.LandError) as err:
+            land.check(src)
+        assert str(src) in str(err.value) and all(w in str(err.value) for w in words), (name, str(err.value))
+    (tmp_path / "bad" ).mkdir()
+    (tmp_path / "bad" / "lease.json").write_text("{not json")
+    assert land.main([str(tmp_path / "bad"), "--run", str(tmp_path / "run")]) == 1
+    assert "lease.json: not readable JSON" in capsys.readouterr().err and not (tmp_path / "run").exists()
 
 
 def test_device_job_refuses_bad_training_flags(tmp_path):

@@ -109,6 +109,30 @@ def test_the_verdict_sets_the_paper_beside_the_run():
     assert "tag" not in text                                       # commits, not tags
 
 
+def test_a_run_at_the_paper_s_scale_joins_the_verdict_under_the_reference_run_s_hbeo_rows(tmp_path):
+    """Until a lease's run lands beside the reference run the verdict says the paper's scale has not run; once
+    ``results/full-modelnet10-vox30/`` holds ``lease.json`` and HBEO's evaluation, each HBEO row gets its row."""
+    import json
+    import shutil
+    ref = tmp_path / RUN.path.name
+    ref.symlink_to(RUN.path)
+    before = readme.summary(ref)
+    assert "At the paper's scale (the `full` profile on one GPU" in before and "not yet run" in before
+    full = tmp_path / readme.PAPER_SCALE
+    full.mkdir()
+    (full / "lease.json").write_text(json.dumps({"profile": "full", "images_seen": 12_902_400}))
+    shutil.copyfile(RUN.evaluation("hbeo", "3dof"), RunDir(full).evaluation("hbeo", "3dof"))   # a stand-in
+    after = readme.summary(ref)
+    assert "not yet run" not in after
+    rows = [r for r in after.splitlines() if r.startswith("| ")][2:]
+    scaled = [i for i, r in enumerate(rows) if "at the paper's scale" in r]
+    assert len(scaled) == 1 + len(readme.VERDICT_HBEO)                  # class mean, then pose and completion
+    for i in scaled:                                                      # each under the reference run's HBEO row
+        assert "| HBEO (3-DOF) |" in rows[i - 1] and "12.90 M image passes on one GPU" in rows[i]
+        assert rows[i].split(" | ")[2:] == rows[i - 1].split(" | ")[2:]   # the stand-in: the same figures
+    assert rows[scaled[0]].startswith("|  | HBEO (3-DOF) at the paper's scale")
+
+
 def test_the_model_table_lives_in_the_docs_not_the_readme():
     """The long model and targets tables are generated into docs/experiments.md (checked there by
     test_model_table); the README only links to it."""

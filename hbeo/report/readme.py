@@ -43,6 +43,9 @@ VERDICT_HBEO = ((T.POSE_CI, "within_30", "pose within 30°"), (T.POSE_CI, "pose_
                 (T.COMPLETION_CI, "edt_median", "completion, median EDT e′ (lower is better)"))
 #: The paper's column for measures it plots but does not tabulate.
 PLOTS_ONLY = "–"
+#: The run a lease on one GPU lands beside the reference run (``maintainer/device_land.py``): HBEO at the paper's
+#: scale, the ``full`` profile. The verdict shows its HBEO rows under the reference run's once it exists.
+PAPER_SCALE = "full-modelnet10-vox30"
 
 
 def _estimate(row) -> str:
@@ -58,6 +61,24 @@ def _paper_class_mean(rep, setting: str, method: str) -> str:
     row = rep[(rep["setting"] == setting) & (rep["method"] == method)].iloc[0]
     mean = float(row[[c for c in rep.columns if c not in ("setting", "method", "total")]].mean())
     return f"{mean:.1f} %" + ("" if round(mean, 1) == round(float(row["total"]), 1) else f" (total {row['total']:.1f} %)")
+
+
+def estimates_of(metrics: dict, stats):
+    """``stats`` (:data:`hbeo.evaluation.paired.SHOW`'s names) of one evaluation with their 95 % intervals over
+    objects, as :func:`hbeo.evaluation.paired.estimates` gives them (a long DataFrame)."""
+    from hbeo.evaluation import paired
+    return paired.estimates(paired.PairedBootstrap([metrics]), stats)
+
+
+def paper_scale(run) -> tuple[dict, "object"] | None:
+    """The lease run beside ``run`` (:data:`PAPER_SCALE`, a sibling folder): (its ``lease.json``, its HBEO
+    (3-DOF) figures: :func:`estimates_of` indexed by statistic), or None while no lease has landed."""
+    d = RunDir.of(run).path.parent / PAPER_SCALE
+    lease, ev = d / "lease.json", RunDir(d).evaluation("hbeo", "3dof")
+    if not (lease.exists() and ev.exists()):
+        return None
+    stats = ["class_accuracy", *(stat for _, stat, _ in VERDICT_HBEO)]
+    return json.loads(lease.read_text()), estimates_of(json.loads(ev.read_text()), stats).set_index("statistic")
 
 
 def _spread_line(run, man: dict) -> list[str]:
@@ -95,16 +116,23 @@ def summary(run) -> str:
              "| measure | method | n | reproduced [95 % interval] | paper |", "| --- | --- | --- | --- | --- |"]
 
     shown = set()
+    scale = paper_scale(run) if run.path.name != PAPER_SCALE else None
+
+    def line(measure, label, r, stat, paper):
+        cell = "" if measure in shown else measure
+        shown.add(measure)
+        lines.append(f"| {cell} | {label} | {int(r['n_objects'])} / {int(r['n_queries'])} | "
+                     f"{_estimate(r.to_dict() | {'statistic': stat})} | {paper} |")
 
     def row(measure, key, stat, name, paper):
         if (*key, stat) not in long.index:
             return
         r = long.loc[(*key, stat)]
-        label = r["label"] + (f", in place of {name}" if name else "")
-        cell = "" if measure in shown else measure
-        shown.add(measure)
-        lines.append(f"| {cell} | {label} | {int(r['n_objects'])} / {int(r['n_queries'])} | "
-                     f"{_estimate(r.to_dict() | {'statistic': stat})} | {paper} |")
+        line(measure, r["label"] + (f", in place of {name}" if name else ""), r, stat, paper)
+        if scale is not None and key == ("hbeo", "3dof"):
+            lease, est = scale
+            line(measure, f"{r['label']} at the paper's scale (`{PAPER_SCALE}`: `{lease['profile']}` profile, "
+                          f"{lease['images_seen'] / 1e6:.2f} M image passes on one GPU)", est.loc[stat], stat, paper)
 
     for key, (setting, method), name in VERDICT_TABLE1:
         row("Table I, class-mean accuracy", key, "class_accuracy", name, _paper_class_mean(rep, setting, method))
@@ -112,6 +140,9 @@ def summary(run) -> str:
         row(measure, ("hbeo", "3dof"), stat, None, PLOTS_ONLY)
     lines += ["", f"*paper*: its Table I row as a class mean (its own total in parentheses where that differs); "
                   f"{PLOTS_ONLY}: the paper plots pose and completion errors and gives no number."]
+    if scale is None and run.path.name != PAPER_SCALE:
+        lines += ["", f"At the paper's scale (the `full` profile on one GPU, `docs/scale.md`): not yet run. Its HBEO "
+                      f"rows join the table once a run lands in `results/{PAPER_SCALE}/`."]
     if run.table(T.CLAIMS).exists():
         cl = pd.read_csv(run.table(T.CLAIMS))
         lines += ["", "The paper's claims, each judged by a paired 95 % interval (`06_claims.md`):", ""]
