@@ -155,6 +155,23 @@ def first_minute(args) -> dict:
     return done
 
 
+def source() -> dict:
+    """The code the job runs: ``{"commit", "dirty"}`` from ``$HBEO_DEVICE_SOURCE`` (``source.json``, written by
+    ``device_prepare.sh`` where the checkout is, since the device's copy has no ``.git``), else from git here,
+    else ``{"commit": None}``."""
+    path = os.environ.get("HBEO_DEVICE_SOURCE")
+    if path and Path(path).exists():
+        return {**_read_json(Path(path)), "from": "source.json"}
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                                check=True).stdout.strip()
+        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", ".", ":!results", ":!docs/history"],
+                               cwd=ROOT).returncode != 0
+        return {"commit": commit, "dirty": dirty, "from": "git"}
+    except (OSError, subprocess.CalledProcessError):
+        return {"commit": None, "dirty": None, "from": None}
+
+
 def device_name() -> str:
     """The device the training loop picks (``auto``: CUDA where there is one), in words."""
     import torch
@@ -261,7 +278,7 @@ def worker(args) -> int:
     run = Run.open(args.profile, args.dataset, args.run)
     state_path = run.path / STATE
     state = _read_json(state_path)
-    state.update(pid=os.getpid(), status="running", device=device_name())
+    state.update(pid=os.getpid(), status="running", device=device_name(), source=source())
     state.setdefault("stages", {})
     _write_json(state_path, state)
     ckpt = run.dir.checkpoint(run.dir.model)

@@ -12,5 +12,6 @@ if compgen -G "$DEV/whl/*.whl" > /dev/null; then
   export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH}
 fi
 [ -f "$DEV/modelnet10_vox30.npz" ] && export HBEO_VOX30=${HBEO_VOX30:-$DEV/modelnet10_vox30.npz}
+[ -f "$DEV/source.json" ] && export HBEO_DEVICE_SOURCE=${HBEO_DEVICE_SOURCE:-$DEV/source.json}
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 exec "${PYTHON:-python3}" maintainer/device_job.py "$@"

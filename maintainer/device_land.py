@@ -172,6 +172,9 @@ def reproduction_md(run_dir: Path, lease: dict, gpu_eval: dict, rescored: dict |
              "## What ran", "",
              f"- Device: {lease.get('device')}.",
              f"- Command (the worker's): `{lease.get('command')}`.",
+             "- Code: " + (f"commit `{lease['source']['commit'][:10]}`"
+                           + (", with uncommitted changes" if lease["source"].get("dirty") else ", clean")
+                           if (lease.get("source") or {}).get("commit") else "commit not recorded") + ".",
              f"- Profile `{prof.name}`: {lease['image_size'][0]}×{lease['image_size'][1]} images, "
              f"{lease.get('train_data')} data, batch {lease['batch_size']}; "
              f"{lease['steps']:,} steps = {lease['images_seen']:,} image passes.",

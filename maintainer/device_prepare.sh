@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Make what the device job needs to travel to a lent GPU machine, in .device/ (ignored by git, named in
-# the device tool's `carry`): the 30^3 grid file and wheels of what the device image lacks (its Python is
+# the device tool's `carry`): the 30^3 grid file, source.json (the commit that travels) and wheels of what the device image lacks (its Python is
 # 3.12 with numpy 2 and torch 2.11 + CUDA; trimesh and pooch are not there, nor embreex: EMBREE=1 adds it). Then, on the device:
 #     bash maintainer/device_job.sh            (see maintainer/device_job.py; README "Paper scale on one GPU")
 # Usage: bash maintainer/device_prepare.sh [DEST]       (DEST default .device; WHEELS=0 skips the downloads)
@@ -24,6 +24,14 @@ if [ "${WHEELS:-1}" != "0" ]; then
       --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
       --platform any -d "$DEST/whl" "$spec"
   done
+fi
+# the code that travels, for lease.json (the device's copy has no .git): the commit, and whether tracked files
+# outside results/ and docs/history/ (which device_tree.sh slim leaves behind) differ from it
+if git rev-parse --git-dir > /dev/null 2>&1; then
+  dirty=false
+  git diff --quiet HEAD -- . ':!results' ':!docs/history' || dirty=true
+  printf '{"commit": "%s", "dirty": %s}\n' "$(git rev-parse HEAD)" "$dirty" > "$DEST/source.json"
+  echo "source: $(cat "$DEST/source.json")"
 fi
 # what travels: tracked files, untracked ones git does not ignore, and DEST; the device tool takes 64 MiB at most
 if git rev-parse --git-dir > /dev/null 2>&1; then

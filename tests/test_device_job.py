@@ -40,8 +40,8 @@ def _device_like(tmp_path) -> str:
     return str(d)
 
 
-def _job(run, out, *extra, wait=600, pythonpath=()):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*pythonpath, str(ROOT)])}
+def _job(run, out, *extra, wait=600, pythonpath=(), env=None):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*pythonpath, str(ROOT)]), **(env or {})}
     return subprocess.run([sys.executable, str(JOB), "--profile", "ci", "--dataset", "procedural", "--run", str(run),
                            "--out", str(out), "--wait", str(wait), "--checkpoint-every", "5", *extra],
                           capture_output=True, text=True, env=env, timeout=900)
@@ -126,6 +126,9 @@ def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_
     assert r.returncode in (0, 3), r.stderr                      # 3: this tree with dest passes 64 MiB
     assert (dest / "modelnet10_vox30.npz").read_bytes() == Path(vox30_file).read_bytes()
     assert "to travel" in r.stdout and (r.returncode == 0 or "device_tree.sh slim" in r.stderr)
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    src = json.loads((dest / "source.json").read_text())          # the commit that travels, for lease.json
+    assert src["commit"] == head and isinstance(src["dirty"], bool)
     # over the limit: exit 3 with the largest files listed (sort | head ended with SIGPIPE, 141, in CI)
     r = subprocess.run(["bash", str(ROOT / "maintainer" / "device_prepare.sh"), str(dest)], capture_output=True,
                        text=True, env={**env, "LIMIT_MIB": "0"}, timeout=120)
@@ -183,10 +186,12 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
                            env={**os.environ, "PYTHONPATH": _device_like(tmp_path)})
     assert "not on the device" in probe.stderr                # the device-like path does hide those packages
     run, out = tmp_path / "run", tmp_path / "out"
+    source = tmp_path / "source.json"                    # device_prepare.sh's: the device's copy has no .git
+    source.write_text(json.dumps({"commit": "0123456789abcdef" * 2 + "01234567", "dirty": False}))
     # as on the device: its packages only, the fresh views streamed and ray-marched in torch (the full profile's)
     r = _job(run, out, "--first-minute", "240", "--budget", "400", "--calibrate", "2", "--eval-reserve", "20",
              "--max-steps", "4", "--dataset", "modelnet10-vox30", "--data", "stream", "--backend", "torch",
-             pythonpath=[_device_like(tmp_path)])
+             pythonpath=[_device_like(tmp_path)], env={"HBEO_DEVICE_SOURCE": str(source)})
     assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
     lease = json.loads((out / "lease.json").read_text())
     assert lease["train_data"] == "stream" and "not on the device" not in (run / "job.log").read_text()
@@ -205,6 +210,7 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     assert re["iou_max_abs_diff"] == re["edt_max_rel_diff"] == 0
     md = (landed / "REPRODUCTION.md").read_text()
     assert "stream data" in md and "marcher `auto`" in md and "| class mean accuracy | 30 / 30 |" in md
+    assert lease["source"]["commit"].startswith("0123456789") and "- Code: commit `0123456789`, clean." in md
     assert json.loads((landed / "first_minute.json").read_text()) == fm["report"]
     assert (landed / "train_model" / "train_log.csv").exists()
     again = _job(run, tmp_path / "out2", "--first-minute", "240")        # finished: no second benchmark
