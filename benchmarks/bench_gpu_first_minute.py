@@ -20,9 +20,12 @@ time limit still returns what it measured. A stage that fails records its error 
   batch whose march would need more than half the free device memory (~128 bytes a ray) is skipped.
 - ``tiles``: the fused marcher's images/s at the second batch for a few tile shapes (TW, TH, G).
 - ``network``: images/s of HBEONet's training step (forward, the mean square of every output, backward,
-  the loop's AdamW) per precision (``float32``; ``amp-float16`` with a GradScaler, the loop's; ``amp-bfloat16``)
+  the loop's AdamW) per precision (``float32``; ``amp-float16`` with a GradScaler; ``amp-bfloat16``, the loop's:
+  no scaler, :class:`hbeo.model.loop.TrainConfig`'s ``amp_dtype``)
   and batch (``--net-batches``), channels-last, on random depth; code of ``bench_gpu_step.py``.
-- ``both``: the fused marcher's batch then the ``amp-float16`` step on it, per network batch.
+- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch. The training
+  loop end to end and the batched evaluation are what the device job then measures itself (``lease.json``:
+  ``budget``'s calibration, ``stages``; ``train_log.csv``'s images/s).
 - ``poses``: the host's time for a march's poses (``--pose-images``), drawn in this process and ahead in worker
   processes (``--pose-workers``), what the training loop pays before each march (``bench_draw_ahead.py``).
 
@@ -55,6 +58,7 @@ from pathlib import Path
 
 STAGES = ("setup", "compile", "agreement", "render", "tiles", "network", "both", "poses")
 PRECISIONS = ("float32", "amp-float16", "amp-bfloat16")
+LOOP_PRECISION = "amp-bfloat16"         # the training loop's (hbeo.model.loop.TrainConfig.amp_dtype; tested)
 TILES = [(16, 8, 1), (8, 8, 1), (32, 4, 1), (16, 16, 1), (32, 8, 1)]
 BYTES_PER_RAY = 128                     # the torch march's peak memory per ray (its state and intermediates)
 
@@ -283,12 +287,12 @@ def main(argv=None) -> None:
 
     def both(d):
         d["rows"] = []
-        step = st["step"]["amp-float16"]
+        step = st["step"][LOOP_PRECISION]
         for batch in args.net_batches:
             obj, R, t = draw(batch)
             n, wall = timed_calls(lambda: step(render("triton", obj, R, t)), args.seconds,
                                   warmup=0 if args.cpu_check else 1)
-            d["rows"].append({"marcher": "triton", "precision": "amp-float16", "batch": batch,
+            d["rows"].append({"marcher": "triton", "precision": LOOP_PRECISION, "batch": batch,
                               "images_per_s": round(n * batch / wall, 1)})
             rep.write()
 

@@ -35,6 +35,8 @@ def test_the_first_minute_benchmark_runs_on_a_cpu(tmp_path):
     assert {r["precision"] for r in rows} == {"float32", "amp-float16", "amp-bfloat16"}
     assert all(r.get("images_per_s", 0) > 0 for r in rows), rows
     assert d["both"]["rows"][0]["images_per_s"] > 0
+    from hbeo.model.loop import TrainConfig                       # "both" times the training loop's precision
+    assert d["both"]["rows"][0]["precision"] == "amp-" + TrainConfig().amp_dtype
 
 
 def test_a_failing_stage_is_recorded_and_the_json_is_written_after_each(tmp_path):
