@@ -16,7 +16,8 @@ problem:
 Then, into the run folder (default ``results/<profile>-<dataset>``; files written to a temporary name, then
 renamed): ``model.hbeo``, ``eval_hbeo_3dof.json`` (the GPU's scoring), ``lease.json``, ``job.log``,
 ``first_minute.json`` (the benchmark's figures, from ``lease.json``), the training log and provenance beside the
-model (:class:`hbeo.rundir.RunDir`'s places), ``rescore_cpu.json`` and ``REPRODUCTION.md``.
+model (:class:`hbeo.rundir.RunDir`'s places), ``eval_hbeo_3dof_cpu.json`` (the CPU's answers, which
+``tests/test_reference_run.py`` checks the model against), ``rescore_cpu.json`` and ``REPRODUCTION.md``.
 
 ``rescore_cpu.json``: the model evaluated again on this CPU, on the same paired views of the first ``--per-class``
 test objects of each class (20; ``0``: every one), compared with the GPU's scoring query by query (:func:`agreement`:
@@ -40,6 +41,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 RESCORE = "rescore_cpu.json"
+CPU_EVAL = "eval_hbeo_3dof_cpu.json"     #: the CPU's answers (tests/test_reference_run.py scores the model again)
 FIRST_MINUTE = "first_minute.json"
 REFERENCE = "cpu-modelnet10-vox30"       #: the CPU reference run the REPRODUCTION.md sets the lease beside
 #: The headline statistics (hbeo.evaluation.paired's names), in the order REPRODUCTION.md shows them.
@@ -129,7 +131,7 @@ def agreement(gpu: dict, cpu: dict) -> dict:
 
 def rescore(run_dir: Path, lease: dict, gpu_eval: dict, per_class: int | None) -> dict:
     """The landed model scored again on this CPU on the GPU evaluation's paired views (the first ``per_class``
-    test objects of each class, or all), and :func:`agreement` with the GPU's answers."""
+    test objects of each class, or all): (:func:`agreement` with the GPU's answers, the CPU's metrics)."""
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.evaluation.protocol import eval_plan
     from hbeo.run import Run
@@ -144,12 +146,13 @@ def rescore(run_dir: Path, lease: dict, gpu_eval: dict, per_class: int | None) -
     t0 = time.perf_counter()
     cpu = evaluate_model(model, run.dataset, split="test", views=views, seed=req["seed"], per_class=per_class or None,
                          progress=True, batched=True)
+    cpu["request"] = {**gpu_eval["request"], "per_class": per_class or None, "device": "cpu"}
     out = {"per_class": per_class or None, "device": f"cpu: {torch.get_num_threads()} threads "
                                                        f"(torch {torch.__version__})",
            "wall_s": round(time.perf_counter() - t0, 1), "model_sha256": lease["model_sha256"],
            **agreement(gpu_eval, cpu),
            "cpu_class_mean_accuracy": cpu.get("class_mean_accuracy"), "cpu_accuracy": cpu.get("accuracy")}
-    return out
+    return out, cpu
 
 
 def _cell(row) -> str:
@@ -240,7 +243,8 @@ def land(src: Path, run_dir: Path | None = None, per_class: int | None = 20, res
         atomic_text(rd.path / FIRST_MINUTE, json_text(lease["first_minute"]["report"], indent=1))
     rescored = None
     if rescore_it:
-        rescored = rescore(rd.path, lease, ev, per_class)
+        rescored, cpu = rescore(rd.path, lease, ev, per_class)
+        atomic_text(rd.path / CPU_EVAL, json_text(cpu, indent=1))
         atomic_text(rd.path / RESCORE, json_text(rescored, indent=1))
     atomic_text(rd.reproduction, reproduction_md(rd.path, lease, ev, rescored))
     return rd.path

@@ -213,6 +213,8 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     assert lease["source"]["commit"].startswith("0123456789") and "- Code: commit `0123456789`, clean." in md
     assert json.loads((landed / "first_minute.json").read_text()) == fm["report"]
     assert (landed / "train_model" / "train_log.csv").exists()
+    cpu = json.loads((landed / "eval_hbeo_3dof_cpu.json").read_text())
+    assert cpu["n_queries"] == 10 and cpu["request"]["per_class"] == 1 and cpu["request"]["device"] == "cpu"
     again = _job(run, tmp_path / "out2", "--first-minute", "240")        # finished: no second benchmark
     assert again.returncode == 0 and "first minute" not in again.stdout
     cut = _job(tmp_path / "run2", tmp_path / "out3", "--first-minute", "3", "--max-steps", "2", "--wait", "0")

@@ -85,7 +85,12 @@ def test_the_committed_model_reproduces_its_committed_evaluation(reference, monk
     if PER_CLASS is None:
         assert got["accuracy"] == committed["accuracy"]
         assert got["class_mean_accuracy"] == pytest.approx(class_mean)
-    a = got["per_query"]
+    _assert_same_answers(got, committed)
+
+
+def _assert_same_answers(got: dict, committed: dict) -> None:
+    """``got``'s queries (a subset of objects) answered as ``committed``'s same queries are, query by query."""
+    a, q = got["per_query"], committed["per_query"]
     index = {(k, o, v): i for i, (k, o, v) in enumerate(zip(q["class"], q["object"], q["view"]))}
     scored = list(zip(a["class"], a["object"], a["view"]))
     objects = {(k, o) for k, o, _ in scored}
@@ -103,3 +108,27 @@ def test_the_committed_model_reproduces_its_committed_evaluation(reference, monk
     # order of the run that wrote the JSON) moves it by a fraction of a per cent for one query of 907
     np.testing.assert_allclose(a["edt"], b["edt"], rtol=2e-3, err_msg="edt")
     assert np.mean(np.abs(np.array(a["edt"]) - b["edt"]) > 1e-3) < 0.01
+
+
+#: The run at the paper's scale, landed from a lease on one GPU (maintainer/device_land.py).
+PAPER_SCALE = RESULTS / "full-modelnet10-vox30"
+
+
+@pytest.mark.skipif(not (PAPER_SCALE / "eval_hbeo_3dof_cpu.json").exists(),
+                    reason="no run at the paper's scale has landed yet (maintainer/device_land.py)")
+def test_the_paper_scale_model_reproduces_its_scoring_on_a_cpu(monkeypatch, request):
+    """The landed model, scored again here on the first objects of each class, answers as the landing's CPU
+    scoring did (``eval_hbeo_3dof_cpu.json``), whose agreement with the GPU's is ``rescore_cpu.json``."""
+    from hbeo.model.inference import HBEO
+    from hbeo.evaluation.evaluate import evaluate_model
+    run = RunDir(PAPER_SCALE)
+    cpu = json.loads((PAPER_SCALE / "eval_hbeo_3dof_cpu.json").read_text())
+    rescore = json.loads((PAPER_SCALE / "rescore_cpu.json").read_text())
+    lease = json.loads((PAPER_SCALE / "lease.json").read_text())
+    assert sha256_file(run.model) == lease["model_sha256"] == rescore["model_sha256"]
+    assert cpu["request"]["model_sha256"] == lease["model_sha256"][:16]
+    ds = _dataset(lease["dataset"], lease["profile"], monkeypatch, request)
+    req = cpu["request"]
+    got = evaluate_model(HBEO.load(run.model), ds, split="test", views=req["views"], seed=req["seed"],
+                         per_class=min(5, req["per_class"] or 5), progress=False, batched=True)
+    _assert_same_answers(got, cpu)
