@@ -30,8 +30,8 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    foreground for at most that long (``--cpu-check`` where there is no GPU); its figures go into ``lease.json``'s
    ``first_minute``, the worker's ``--budget`` is what is left of the job's, and the marcher the worker trains
    with follows the benchmark's agreement stage (:func:`marcher_choice`, a rule fixed before any GPU result).
-2. It waits for the worker until it finishes or ``--wait`` runs out (counted from the call's start) (then it says so: call again, on the
-   same warm machine, to go on waiting; a cut worker is restarted from its checkpoint).
+2. It waits for the worker until it finishes or ``--wait`` (counted from the call's start) runs out; then it says
+   so: call again, on the same warm machine, to go on waiting (a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
    ``eval_hbeo_3dof.json``, the training curves ``train_log.csv``, ``provenance.json``, the worker's
    ``job.log``, and the model gzipped and split into parts of at most 15 MiB (``model.hbeo.gz.part00`` ...;
