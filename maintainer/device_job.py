@@ -68,7 +68,8 @@ WARMUP_STEPS = 5                 # --budget: untimed training steps before the t
 STATE = "job_state.json"         # the worker's stages, written atomically by the worker
 FIRST_MINUTE = "first_minute.json"   # --first-minute: the benchmark's figures, in the run folder
 #: --first-minute's rule for training on the fused marcher (hbeo.render.fused) rather than the torch one, fixed
-#: before any GPU result: the agreement stage ran without error on both marchers, at most this share of its
+#: before any GPU result: the agreement stage ran without error on both marchers (and no render batch failed on
+#: the fused one), at most this share of its
 #: pixels are hit by one marcher and missed by the other (1e-5: under one pixel an image at 320x240), and no
 #: depth that both hit differs by more than this (1 mm: below the float16 step the stored depth keeps, 2**-10 m
 #: from 1 m on, and far below the sensor noise).
@@ -107,11 +108,16 @@ def marcher_choice(report: dict) -> dict:
     """The marcher the worker trains with, from the first-minute benchmark's JSON (``report``):
     ``{"gridcast": "auto" | "torch", "reason": ...}``. ``auto`` (GridCaster's default: the fused marcher on a
     GPU where triton imports) only when the agreement stage meets :data:`AGREE_MAX_FLIP_SHARE` and
-    :data:`AGREE_MAX_DEPTH_M`; else ``torch``, the reference march, and the reason says why."""
+    :data:`AGREE_MAX_DEPTH_M` and no batch of the render stage failed on the fused marcher; else ``torch``, the
+    reference march, and the reason says why."""
     errors = report.get("errors") or {}
     for stage in ("setup", "compile", "agreement"):
         if stage in errors:
             return {"gridcast": "torch", "reason": f"the {stage} stage failed: {errors[stage]}"}
+    failed = [r for r in (report.get("render") or {}).get("triton", []) if "error" in r]
+    if failed:                                   # a batch the training's marches reach failed on the fused marcher
+        return {"gridcast": "torch", "reason": f"the fused marcher failed at batch {failed[0]['batch']}: "
+                                               f"{failed[0]['error']}"}
     a = report.get("agreement") or {}
     if not a.get("pixels"):
         return {"gridcast": "torch", "reason": "the agreement stage did not run (cut by its time limit?)"}
