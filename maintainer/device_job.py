@@ -108,13 +108,15 @@ def marcher_choice(report: dict) -> dict:
     """The marcher the worker trains with, from the first-minute benchmark's JSON (``report``):
     ``{"gridcast": "auto" | "torch", "reason": ...}``. ``auto`` (GridCaster's default: the fused marcher on a
     GPU where triton imports) only when the agreement stage meets :data:`AGREE_MAX_FLIP_SHARE` and
-    :data:`AGREE_MAX_DEPTH_M` and no batch of the render stage failed on the fused marcher; else ``torch``, the
+    :data:`AGREE_MAX_DEPTH_M` and no batch of the render stage that a training march reaches
+    (:data:`hbeo.render.gridcast.RENDER_AHEAD`) failed on the fused marcher; else ``torch``, the
     reference march, and the reason says why."""
     errors = report.get("errors") or {}
     for stage in ("setup", "compile", "agreement"):
         if stage in errors:
             return {"gridcast": "torch", "reason": f"the {stage} stage failed: {errors[stage]}"}
-    failed = [r for r in (report.get("render") or {}).get("triton", []) if "error" in r]
+    from hbeo.render.gridcast import RENDER_AHEAD
+    failed = [r for r in (report.get("render") or {}).get("triton", []) if "error" in r and r["batch"] <= RENDER_AHEAD]
     if failed:                                   # a batch the training's marches reach failed on the fused marcher
         return {"gridcast": "torch", "reason": f"the fused marcher failed at batch {failed[0]['batch']}: "
                                                f"{failed[0]['error']}"}

@@ -176,10 +176,11 @@ def test_the_marcher_is_the_fused_one_only_when_the_first_minute_found_the_two_a
         got = choose({"errors": {stage: "RuntimeError: no kernel"}, "agreement": agree})
         assert got["gridcast"] == "torch" and stage in got["reason"] and "no kernel" in got["reason"]
     assert choose({"errors": {"poses": "cut"}, "agreement": agree})["gridcast"] == "auto"   # a later stage: no matter
-    render = {"triton": [{"batch": 512, "images_per_s": 9e4}, {"batch": 8192, "error": "OutOfResources: shared"}]}
+    from hbeo.render.gridcast import RENDER_AHEAD                   # the largest march of the training
+    render = {"triton": [{"batch": 512, "images_per_s": 9e4}, {"batch": RENDER_AHEAD, "error": "OutOfResources: x"}]}
     got = choose({"errors": {}, "agreement": agree, "render": render})
-    assert got["gridcast"] == "torch" and "batch 8192" in got["reason"] and "OutOfResources" in got["reason"]
-    render["triton"].pop()
+    assert got["gridcast"] == "torch" and f"batch {RENDER_AHEAD}" in got["reason"] and "OutOfResources" in got["reason"]
+    render["triton"][1]["batch"] = 4 * RENDER_AHEAD                  # a batch the training never marches
     assert choose({"errors": {}, "agreement": agree, "render": render})["gridcast"] == "auto"
     assert choose({})["gridcast"] == "torch"
 
