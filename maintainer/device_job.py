@@ -165,19 +165,15 @@ def first_minute(args) -> dict:
 
 def source() -> dict:
     """The code the job runs: ``{"commit", "dirty"}`` from ``$HBEO_DEVICE_SOURCE`` (``source.json``, written by
-    ``device_prepare.sh`` where the checkout is, since the device's copy has no ``.git``), else from git here,
-    else ``{"commit": None}``."""
+    ``device_prepare.sh`` where the checkout is, since the device's copy has no ``.git``), else from git here
+    (:func:`hbeo.report.provenance.git_state`, outside what ``device_tree.sh slim`` leaves behind), else
+    ``{"commit": None}``."""
     path = os.environ.get("HBEO_DEVICE_SOURCE")
     if path and Path(path).exists():
         return {**_read_json(Path(path)), "from": "source.json"}
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                                check=True).stdout.strip()
-        dirty = subprocess.run(["git", "diff", "--quiet", "HEAD", "--", ".", ":!results", ":!docs/history"],
-                               cwd=ROOT).returncode != 0
-        return {"commit": commit, "dirty": dirty, "from": "git"}
-    except (OSError, subprocess.CalledProcessError):
-        return {"commit": None, "dirty": None, "from": None}
+    from hbeo.report.provenance import git_state
+    git = git_state(exclude=("results", "docs/history"))
+    return {"commit": git["git_commit"], "dirty": git["git_dirty"], "from": "git" if git["git_commit"] else None}
 
 
 def device_name() -> str:

@@ -32,7 +32,6 @@ import argparse
 import gzip
 import hashlib
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -100,12 +99,6 @@ def check(src: Path) -> dict:
     return {"lease": lease, "evaluation": ev, "model_bytes": data}
 
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
-    tmp.replace(path)
-
-
 def agreement(gpu: dict, cpu: dict) -> dict:
     """The CPU's answers against the GPU's on the queries both scored (keyed by class, object and view): how many,
     how many predicted another class, and the largest absolute pose (degrees) and IoU differences and the largest
@@ -155,12 +148,6 @@ def rescore(run_dir: Path, lease: dict, gpu_eval: dict, per_class: int | None) -
     return out, cpu
 
 
-def _cell(row) -> str:
-    from hbeo.evaluation.paired import SHOW, Estimate
-    fmt, scale, unit = SHOW[row["statistic"]]
-    return Estimate(row["value"], row["low"], row["high"], 0, 0).text(fmt, scale) + unit
-
-
 def reproduction_md(run_dir: Path, lease: dict, gpu_eval: dict, rescored: dict | None) -> str:
     """The lease run's REPRODUCTION.md (Markdown), every figure read from the files beside it."""
     import pandas as pd
@@ -195,21 +182,20 @@ def reproduction_md(run_dir: Path, lease: dict, gpu_eval: dict, rescored: dict |
     lines += ["", "## Headline on the test split", "",
               f"n = test objects / queries; 95 % intervals over test objects. The reference run is the `cpu` profile "
               f"on 2 CPU cores (`results/{REFERENCE}/`).", ""]
-    from hbeo.report.readme import estimates_of
+    from hbeo.report.readme import _estimate, _paper_class_mean, estimates_of
     here = estimates_of(gpu_eval, HEADLINE).set_index("statistic")
     ref_path = config.REPO_ROOT / "results" / REFERENCE / "eval_hbeo_3dof.json"
     ref = estimates_of(json.loads(ref_path.read_text()), HEADLINE).set_index("statistic") if ref_path.exists() else None
     rep = pd.read_csv(config.REPO_ROOT / "paper" / "reported" / "table1_classification.csv")
-    row = rep[(rep["setting"] == "unknown_pose_3dof") & (rep["method"] == "HBEO")].iloc[0]
-    paper_mean = float(row[[c for c in rep.columns if c not in ("setting", "method", "total")]].mean())
+    total = rep[(rep["setting"] == "unknown_pose_3dof") & (rep["method"] == "HBEO")].iloc[0]["total"]
+    paper = {"class_accuracy": _paper_class_mean(rep, "unknown_pose_3dof", "HBEO"), "accuracy": f"{total:.1f} %"}
     lines += ["| measure | n | this run | reference `cpu` run | paper |", "| --- | --- | --- | --- | --- |"]
     for stat in HEADLINE:
         r = here.loc[stat]
-        paper = f"{paper_mean:.1f} %" if stat == "class_accuracy" else (f"{row['total']:.1f} %" if stat == "accuracy"
-                                                                         else "–")
         lines.append(f"| {paired.NAMES[stat]} | {int(r['n_objects'])} / {int(r['n_queries'])} | "
-                     f"{_cell(r.to_dict() | {'statistic': stat})} | "
-                     f"{_cell(ref.loc[stat].to_dict() | {'statistic': stat}) if ref is not None else '–'} | {paper} |")
+                     f"{_estimate(r.to_dict() | {'statistic': stat})} | "
+                     f"{_estimate(ref.loc[stat].to_dict() | {'statistic': stat}) if ref is not None else '–'} | "
+                     f"{paper.get(stat, '–')} |")
     lines += ["", "*paper*: its Table I HBEO row (3-DOF), as a class mean and as its total; –: not given."]
     if rescored:
         lines += ["", "## The same model on this CPU", "",
@@ -226,19 +212,18 @@ def reproduction_md(run_dir: Path, lease: dict, gpu_eval: dict, rescored: dict |
 def land(src: Path, run_dir: Path | None = None, per_class: int | None = 20, rescore_it: bool = True) -> Path:
     """Check ``src`` (:func:`check`), write the run folder, score again on this CPU; returns the run folder."""
     from hbeo.rundir import RunDir
-    from hbeo.storage import atomic_text, json_text
+    from hbeo.storage import atomic_file, atomic_text, json_text
     got = check(src)
     lease, ev = got["lease"], got["evaluation"]
     rd = RunDir(run_dir or RunDir.for_run(lease["profile"], lease["dataset"]).path).create()
-    _atomic_bytes(rd.model, got["model_bytes"])
+    with atomic_file(rd.model) as f:
+        f.write(got["model_bytes"])
     for name, dest in (("eval_hbeo_3dof.json", rd.evaluation("hbeo", "3dof")), ("lease.json", rd.path / "lease.json"),
                        ("job.log", rd.path / "job.log"), ("train_log.csv", rd.train_log(rd.model)),
                        ("provenance.json", rd.training_provenance(rd.model))):
         if (Path(src) / name).exists():
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            tmp = dest.with_name(dest.name + ".tmp")
-            shutil.copyfile(Path(src) / name, tmp)
-            tmp.replace(dest)
+            with atomic_file(dest) as f:
+                f.write((Path(src) / name).read_bytes())
     if lease.get("first_minute"):
         atomic_text(rd.path / FIRST_MINUTE, json_text(lease["first_minute"]["report"], indent=1))
     rescored = None

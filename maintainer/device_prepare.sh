@@ -28,13 +28,11 @@ fi
 # the code that travels, for lease.json (the device's copy has no .git): the commit, and whether tracked files
 # outside results/ and docs/history/ (which device_tree.sh slim leaves behind) differ from it
 if git rev-parse --git-dir > /dev/null 2>&1; then
-  dirty=false
-  git diff --quiet HEAD -- . ':!results' ':!docs/history' || dirty=true
-  printf '{"commit": "%s", "dirty": %s}\n' "$(git rev-parse HEAD)" "$dirty" > "$DEST/source.json"
+  $PY -c "import json; from hbeo.report.provenance import git_state
+g = git_state(exclude=('results', 'docs/history'))
+print(json.dumps({'commit': g['git_commit'], 'dirty': g['git_dirty']}))" > "$DEST/source.json"
   echo "source: $(cat "$DEST/source.json")"
-fi
-# what travels: tracked files, untracked ones git does not ignore, and DEST; the device tool takes 64 MiB at most
-if git rev-parse --git-dir > /dev/null 2>&1; then
+  # what travels: tracked files, untracked ones git does not ignore, and DEST; the device tool takes 64 MiB at most
   tree=$( { git ls-files -z; git ls-files -z -o --exclude-standard; } | du -cb --files0-from=- 2>/dev/null | tail -1 | cut -f1)
   dest=$(du -sb "$DEST" | cut -f1)
   total=$((tree + dest))

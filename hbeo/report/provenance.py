@@ -86,10 +86,10 @@ def hardware() -> dict:
             "cpu_capability": capability, "platform": platform.platform()}
 
 
-def git_state() -> dict:
+def git_state(exclude=("results",)) -> dict:
     """``git_commit``, ``git_tag`` (a tag exactly at it, or None) and ``git_dirty`` (uncommitted changes
-    to tracked files outside ``results/``; None without git)."""
-    dirty = _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)results")
+    to tracked files outside the folders ``exclude``, by default ``results/``; None without git)."""
+    dirty = _git("status", "--porcelain", "--untracked-files=no", "--", ".", *(f":(exclude){d}" for d in exclude))
     return {"git_commit": _git("rev-parse", "HEAD"), "git_tag": _git("describe", "--tags", "--exact-match") or None,
             "git_dirty": bool(dirty) if dirty is not None else None}
 

@@ -116,7 +116,8 @@ def summary(run) -> str:
              "| measure | method | n | reproduced [95 % interval] | paper |", "| --- | --- | --- | --- | --- |"]
 
     shown = set()
-    scale = paper_scale(run) if run.path.name != PAPER_SCALE else None
+    beside = run.path.name != PAPER_SCALE                # the lease run's own summary shows no second copy
+    scale = paper_scale(run) if beside else None
 
     def line(measure, label, r, stat, paper):
         cell = "" if measure in shown else measure
@@ -140,7 +141,7 @@ def summary(run) -> str:
         row(measure, ("hbeo", "3dof"), stat, None, PLOTS_ONLY)
     lines += ["", f"*paper*: its Table I row as a class mean (its own total in parentheses where that differs); "
                   f"{PLOTS_ONLY}: the paper plots pose and completion errors and gives no number."]
-    if scale is None and run.path.name != PAPER_SCALE:
+    if beside and scale is None:
         lines += ["", f"At the paper's scale (the `full` profile on one GPU, `docs/scale.md`): not yet run. Its HBEO "
                       f"rows join the table once a run lands in `results/{PAPER_SCALE}/`."]
     if run.table(T.CLAIMS).exists():
