@@ -35,6 +35,14 @@ _WORKERS_HELP = "local processes (default: the profile's; 0: one per core this p
 
 # --------------------------------------------------------------------------- the one error boundary
 
+def missing_package_line(name: str) -> str:
+    """The one line for a third-party package this Python lacks: which package, which Python, and the set-up
+    that installs it (an environment problem, not a bug)."""
+    return (f"this Python ({sys.executable}) has no package '{name.split('.')[0]}', which hbeo needs here: "
+            "`make setup` installs hbeo's dependencies into .venv; run hbeo as `.venv/bin/python -m hbeo ...` "
+            "(or activate .venv first)")
+
+
 def _bug(err: BaseException) -> int:
     traceback.print_exc()
     print(f"error: unexpected {type(err).__name__}: this is a bug in hbeo; please report it with the command and "
@@ -472,6 +480,11 @@ def main(argv=None) -> int:
         return 2
     except OSError as err:
         print(f"error: {os_error_line(err)}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as err:
+        if not err.name or err.name.split(".")[0] == "hbeo":
+            return _bug(err)                # a module of hbeo's own missing is a bug
+        print(f"error: {missing_package_line(err.name)}", file=sys.stderr)
         return 2
     except Exception as err:                # noqa: BLE001 - anything else is a bug, said so once
         return _bug(err)

@@ -596,6 +596,23 @@ def test_unexpected_error_is_a_bug_with_its_traceback(monkeypatch, capsys):
     assert err.splitlines()[-1].startswith("error: unexpected RuntimeError: this is a bug in hbeo"), err
 
 
+@pytest.mark.parametrize("missing, is_bug", [("torch", False), ("torch.cuda", False), ("hbeo.nothere", True)])
+def test_missing_package_is_one_line_unless_it_is_hbeos_own(monkeypatch, capsys, missing, is_bug):
+    import hbeo.cli
+
+    def needs(args):
+        raise ModuleNotFoundError(f"No module named '{missing}'", name=missing)
+    monkeypatch.setattr(hbeo.cli, "cmd_report", needs)
+    code = main(["report", "--run", "x"])
+    err = capsys.readouterr().err
+    if is_bug:
+        assert code == 1 and "Traceback" in err and "this is a bug in hbeo" in err, err
+    else:
+        assert code == 2 and "Traceback" not in err, err
+        line = err.strip()
+        assert line.startswith("error: this Python (") and "has no package 'torch'" in line and "make setup" in line
+
+
 @pytest.mark.parametrize("argv, option", [
     (["train", "--epochs", "-1"], "--epochs"),
     (["train", "--epochs", "0"], "--epochs"),

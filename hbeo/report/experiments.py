@@ -352,11 +352,15 @@ def _models_made(argv: list[str]) -> list[str]:
 
 
 def _rooted(argv: list[str], repo: Path) -> list[str]:
-    """``argv`` with a relative ``--out`` of an hbeo command made absolute under ``repo``: every path of a spec is
-    taken from the repository's top folder, whatever the command does with a relative one."""
-    if _subcommand(argv) is None:
-        return argv
+    """``argv`` as it runs: a leading ``python`` is the Python running hbeo now (``sys.executable``, so a spec runs
+    in hbeo's own environment whatever ``python`` the shell's PATH finds), and a relative ``--out`` of an hbeo
+    command is made absolute under ``repo``: every path of a spec is taken from the repository's top folder,
+    whatever the command does with a relative one."""
     out = list(argv)
+    if out and out[0] == "python":
+        out[0] = sys.executable
+    if _subcommand(argv) is None:
+        return out
     for i, a in enumerate(out[:-1]):
         if a == "--out" and not Path(out[i + 1]).is_absolute():
             out[i + 1] = str(repo / out[i + 1])
