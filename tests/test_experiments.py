@@ -245,7 +245,6 @@ def test_run_refuses_when_the_profile_changed(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- end to end
 
-@pytest.mark.slow
 def test_a_spec_runs_in_the_python_running_hbeo_with_its_paths_from_the_top_folder(tmp_path):
     import sys
     argv = ["python", "-m", "hbeo", "evaluate", "--out", "results/x.json", "--model", "m.hbeo"]
@@ -256,6 +255,7 @@ def test_a_spec_runs_in_the_python_running_hbeo_with_its_paths_from_the_top_fold
     assert ex._rooted(["bash", "x.sh"], tmp_path) == ["bash", "x.sh"]
 
 
+@pytest.mark.slow
 def test_a_tiny_spec_runs_at_the_ci_profile_and_tabulates(tmp_path, monkeypatch):
     """Train two steps, evaluate one view of one object per class on validation, then models.json and the table."""
     monkeypatch.setenv("HBEO_CACHE", str(tmp_path / "cache"))
