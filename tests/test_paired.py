@@ -137,3 +137,47 @@ def test_two_models_of_the_same_method_are_contrasted_on_their_shared_queries(tm
     (tmp_path / "bad.json").write_text("{")
     done = subprocess.run(script[:2] + [str(tmp_path / "bad.json")] + script[3:], capture_output=True, text=True)
     assert done.returncode == 2 and "bad.json: not a readable metrics file" in done.stderr
+
+
+def test_seed_means_are_contrasted_with_intervals_over_seeds_and_objects(tmp_path):
+    import json
+    import subprocess
+    import sys
+    a = [fake("hbeo", "3dof", lambda k, r=r: k % r != 0, 10.0, 0.0) for r in (2, 3, 4)]   # 45, 60, 67 of 90 right
+    b = [fake("hbeo", "3dof", lambda k, r=r: k % r == 0, 40.0, 0.0) for r in (2, 3)]      # 1/2, 1/3 right
+    est = paired.contrast_seeds(a, b, n_boot=300)
+    acc = est["accuracy"]
+    want = (45 + 60 + 67) / 90 / 3 - (45 + 30) / 90 / 2
+    assert acc.a == pytest.approx([45 / 90, 60 / 90, 67 / 90]) and acc.b == pytest.approx([45 / 90, 30 / 90])
+    assert acc.value == pytest.approx(want)
+    assert acc.seeds_low < acc.value < acc.seeds_high and acc.objects_low <= acc.value <= acc.objects_high
+    # Welch's interval from the per-seed figures themselves (scipy's t), not from the objects
+    from scipy import stats
+    va, vb = np.var(acc.a, ddof=1) / 3, np.var(acc.b, ddof=1) / 2
+    df = (va + vb) ** 2 / (va ** 2 / 2 + vb ** 2 / 1)
+    half = stats.t.ppf(0.975, df) * np.sqrt(va + vb)
+    assert (acc.seeds_low, acc.seeds_high) == pytest.approx((acc.value - half, acc.value + half))
+    assert est["within_30"].value == pytest.approx(1.0) and est["within_30"].seeds_low == pytest.approx(1.0)
+    assert acc.n_queries == 90 and acc.n_objects == 30
+    # only the queries every file answered count
+    fewer = fake("hbeo", "3dof", True, 10.0, 0.0, objects=[(c, f"{c}_{i:04d}") for c in CLS for i in range(5)])
+    est = paired.contrast_seeds(a[:2] + [fewer], b, n_boot=50)
+    assert est["accuracy"].n_queries == 45 and est["accuracy"].n_objects == 15
+    with pytest.raises(ValueError, match="at least two"):
+        paired.contrast_seeds(a, b[:1])
+    files = []
+    for i, m in enumerate(a + b):
+        files.append(tmp_path / f"m{i}.json")
+        files[-1].write_text(json.dumps(m))
+    script = [sys.executable, "scripts/seed_contrast.py", "--a", *map(str, files[:3]), "--b", *map(str, files[3:]),
+              "--out", str(tmp_path / "d.json")]
+    done = subprocess.run(script, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "\naccuracy: a 50.0, 66.7, 74.4; b 50.0, 33.3; a - b 22.0 % [seeds " in done.stdout
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["contrasts"]["accuracy"]["value"] == pytest.approx(want) and doc["a"] == list(map(str, files[:3]))
+    (tmp_path / "bad.json").write_text("{")
+    done = subprocess.run(script[:3] + [str(tmp_path / "bad.json")] + script[4:], capture_output=True, text=True)
+    assert done.returncode == 2 and "bad.json: not a readable metrics file" in done.stderr
+    done = subprocess.run(script[:4] + ["--b", str(files[3])] + script[-2:], capture_output=True, text=True)
+    assert done.returncode == 2 and "at least two" in done.stderr

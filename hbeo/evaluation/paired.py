@@ -14,6 +14,9 @@ paper's Table I totals are read here), ``pose_mean``, ``pose_median``, ``within_
 queries under 30 degrees), ``edt_mean``, ``edt_median``, ``edt_nonempty_mean`` (over non-empty
 completions), ``iou_mean``, ``ms_median``.
 
+Training seeds (:func:`contrast_seeds`): two configurations each trained with several seeds, their seed means
+compared on the queries every file answered, with an interval over seeds (Welch's t) and one over objects.
+
 A claim (:data:`CLAIMS`) is an inequality between two methods' statistics, written as a contrast that
 the claim says is below zero (e.g. HBEO's mean pose error minus half of BEO's). Its verdict
 (:func:`verdict`): ``holds`` when the whole interval of the contrast is below zero, ``fails`` when the
@@ -175,6 +178,62 @@ def contrast_pair(a: dict, b: dict, stats=CONTRASTS, n_boot: int = N_BOOT, seed:
     boot = PairedBootstrap([a, b], n_boot=n_boot, seed=seed)
     ka, kb = (a["method"], a["pose"]), (b["method"], b["pose"])
     return {what: boot.contrast(ka, kb, what) for what in stats}
+
+
+@dataclass
+class SeedContrast:
+    """One statistic of two configurations, each trained with several seeds and scored on the same queries:
+    each arm's per-seed values (``a``, ``b``), the difference of the arms' means (``value``), and two 95 %
+    intervals for it. ``seeds_low``/``seeds_high``: Welch's t over the per-seed values (the spread of
+    training runs, the queries fixed). ``objects_low``/``objects_high``: the paired bootstrap over objects of
+    the seed-averaged statistic (the spread of objects, the trained models fixed)."""
+    a: list[float]
+    b: list[float]
+    value: float
+    seeds_low: float
+    seeds_high: float
+    objects_low: float
+    objects_high: float
+    n_queries: int
+    n_objects: int
+
+
+def _welch(a: np.ndarray, b: np.ndarray, level: float) -> tuple[float, float]:
+    """The ``level`` interval of mean(a) - mean(b) by Welch's t (each arm its own variance)."""
+    from scipy import stats
+    d = a.mean() - b.mean()
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    se = np.sqrt(va + vb)
+    if se == 0:
+        return float(d), float(d)
+    df = (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
+    half = stats.t.ppf((1 + level) / 2, df) * se
+    return float(d - half), float(d + half)
+
+
+def contrast_seeds(a: list[dict], b: list[dict], stats=CONTRASTS, n_boot: int = N_BOOT, seed: int = 0,
+                   level: float = LEVEL) -> dict[str, SeedContrast]:
+    """Two configurations' metrics dicts, one per training seed (at least two each), on the queries that
+    every file answered: per statistic, the mean over ``a``'s seeds minus the mean over ``b``'s, with
+    :class:`SeedContrast`'s two intervals. ValueError when an arm has fewer than two files or the files
+    share no query."""
+    for arm, ms in (("a", a), ("b", b)):
+        if len(ms) < 2:
+            raise ValueError(f"arm {arm} has {len(ms)} metrics file(s); a spread over seeds needs at least two")
+    evals = [dict(m, method=f"{m['method']} ({arm}{i})") for arm, ms in (("a", a), ("b", b))
+             for i, m in enumerate(ms)]
+    boot = PairedBootstrap(evals, n_boot=n_boot, level=level, seed=seed)
+    keys = [(m["method"], m["pose"]) for m in evals]
+    out = {}
+    for what in stats:
+        got = [boot.draws(k, what, on=[o for o in keys if o != k]) for k in keys]
+        va, vb = (np.array([g[0] for g in got[s]]) for s in (slice(0, len(a)), slice(len(a), None)))
+        da = np.mean([g[1] for g in got[:len(a)]], axis=0)
+        db = np.mean([g[1] for g in got[len(a):]], axis=0)
+        q = got[0][2]
+        out[what] = SeedContrast([float(v) for v in va], [float(v) for v in vb], float(va.mean() - vb.mean()),
+                                 *_welch(va, vb, level), *boot._interval(da - db), len(q), q["key"].nunique())
+    return out
 
 
 def verdict(e: Estimate) -> str:
