@@ -165,6 +165,9 @@ def test_seed_means_are_contrasted_with_intervals_over_seeds_and_objects(tmp_pat
     assert est["accuracy"].n_queries == 45 and est["accuracy"].n_objects == 15
     with pytest.raises(ValueError, match="at least two"):
         paired.contrast_seeds(a, b[:1])
+    elsewhere = fake("hbeo", "3dof", True, 10.0, 0.0, objects=[("chair", "elsewhere_0001")])
+    with pytest.raises(ValueError, match="share no"):
+        paired.contrast_seeds(a, [b[0], elsewhere])
     files = []
     for i, m in enumerate(a + b):
         files.append(tmp_path / f"m{i}.json")

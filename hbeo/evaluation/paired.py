@@ -222,6 +222,13 @@ def contrast_seeds(a: list[dict], b: list[dict], stats=CONTRASTS, n_boot: int = 
             raise ValueError(f"arm {arm} has {len(ms)} metrics file(s); a spread over seeds needs at least two")
     evals = [dict(m, method=f"{m['method']} ({arm}{i})") for arm, ms in (("a", a), ("b", b))
              for i, m in enumerate(ms)]
+    tables = [queries(m) for m in evals]
+    shared = set.intersection(*(set(zip(q["key"], q["view"])) for q in tables))
+    if not shared:
+        raise ValueError("the metrics files share no (object, view) query")
+    # resample only the objects every file answered: an object some file lacks would leave resamples empty
+    evals = [dict(m, per_query=q[[kv in shared for kv in zip(q["key"], q["view"])]]
+                  .drop(columns=["key"]).to_dict("list")) for m, q in zip(evals, tables)]
     boot = PairedBootstrap(evals, n_boot=n_boot, level=level, seed=seed)
     keys = [(m["method"], m["pose"]) for m in evals]
     out = {}
