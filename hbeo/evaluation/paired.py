@@ -233,7 +233,7 @@ def contrast_seeds(a: list[dict], b: list[dict], stats=CONTRASTS, n_boot: int = 
     keys = [(m["method"], m["pose"]) for m in evals]
     out = {}
     for what in stats:
-        got = [boot.draws(k, what, on=[o for o in keys if o != k]) for k in keys]
+        got = [boot.draws(k, what) for k in keys]       # every file now holds exactly the shared pairs
         va, vb = (np.array([g[0] for g in got[s]]) for s in (slice(0, len(a)), slice(len(a), None)))
         da = np.mean([g[1] for g in got[:len(a)]], axis=0)
         db = np.mean([g[1] for g in got[len(a):]], axis=0)
