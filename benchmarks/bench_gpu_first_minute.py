@@ -2,7 +2,7 @@
 
     python benchmarks/bench_gpu_first_minute.py --out FILE [--profile gpu-lease] [--grids auto] [--objects 5]
                                                 [--seconds 1.5] [--batches 512,2048,8192]
-                                                [--net-batches 128,512,2048] [--cpu-check]
+                                                [--net-batches 128,256,512,2048] [--cpu-check]
 
 Stages, in order; ``--out`` (JSON) is rewritten after every stage and every figure, so a run cut short by its
 time limit still returns what it measured. A stage that fails records its error and the next one runs.
@@ -23,7 +23,8 @@ time limit still returns what it measured. A stage that fails records its error 
   the loop's AdamW) per precision (``float32``; ``amp-float16`` with a GradScaler; ``amp-bfloat16``, the loop's:
   no scaler, :class:`hbeo.model.loop.TrainConfig`'s ``amp_dtype``)
   and batch (``--net-batches``), channels-last, on random depth; code of ``bench_gpu_step.py``.
-- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch. The training
+- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch (batches 128
+  and 256 decide the device job's batch: ``maintainer/device_job.py``'s ``batch_choice``). The training
   loop end to end and the batched evaluation are what the device job then measures itself (``lease.json``:
   ``budget``'s calibration, ``stages``; ``train_log.csv``'s images/s).
 - ``poses``: the host's time for a march's poses (``--pose-images``), drawn in this process and ahead in worker
@@ -71,7 +72,8 @@ def parse(argv=None):
     ap.add_argument("--objects", type=int, default=5, help="grids a class (5)")
     ap.add_argument("--seconds", type=float, default=1.5, help="timing per figure (1.5 s)")
     ap.add_argument("--batches", default="512,2048,8192", help="renderer batches")
-    ap.add_argument("--net-batches", default="128,512,2048", help="network batches")
+    ap.add_argument("--net-batches", default="128,256,512,2048",
+                    help="network batches (128 and 256 first: the device job's batch rule reads them)")
     ap.add_argument("--agree", type=int, default=256, help="images of the agreement stage (256)")
     ap.add_argument("--pose-images", type=int, default=2048, help="images of a march in the poses stage (2048)")
     ap.add_argument("--pose-workers", default="4,8", help="worker processes of the poses stage (4,8)")

@@ -5,6 +5,7 @@ leave what must come back under a lent GPU machine's transfer limits.
                                  [--out DIR] [--wait SECONDS] [--budget SECONDS] [--split test|val]
                                  [--data stream] [--backend torch] [--class-balance sampler] [--epochs N] [--seed S]
                                  [--render-ahead N] [--draw-workers N] [--loss-weights C,O,P] [--fc W1,W2,W3]
+                                 [--batch-size N] [--lr LR] [--warmup-steps N] [--warmup-share F]
 
 The training flags override the profile's recipe as ``python -m hbeo train``'s do (e.g. the ``cpu`` profile's
 recipe with fresh views rendered on the GPU: ``--profile cpu --data stream --backend torch``); ``--split val``
@@ -29,7 +30,9 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    With ``--first-minute SECONDS`` a fresh job first runs ``benchmarks/bench_gpu_first_minute.py`` in the
    foreground for at most that long (``--cpu-check`` where there is no GPU); its figures go into ``lease.json``'s
    ``first_minute``, the worker's ``--budget`` is what is left of the job's, and the marcher the worker trains
-   with follows the benchmark's agreement stage (:func:`marcher_choice`, a rule fixed before any GPU result).
+   with follows the benchmark's agreement stage (:func:`marcher_choice`, a rule fixed before any GPU result), and
+   so does its batch (:func:`batch_choice`: 256 instead of the ``full`` profile's 128 only where validated, on the
+   fused marcher and at least 1.3 times as fast).
 2. It waits for the worker until it finishes or ``--wait`` (counted from the call's start) runs out; then it says
    so: call again, on the same warm machine, to go on waiting (a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
@@ -75,6 +78,18 @@ FIRST_MINUTE = "first_minute.json"   # --first-minute: the benchmark's figures, 
 #: from 1 m on, and far below the sensor noise).
 AGREE_MAX_FLIP_SHARE = 1e-5
 AGREE_MAX_DEPTH_M = 1e-3
+#: --first-minute's rule for the batch, fixed before any GPU result (experiment ``batch256-e13-seeds``,
+#: experiments/cpu-modelnet10-vox30/53-batch256-e13-seeds.toml): a job whose profile trains at batch 128 and peak
+#: learning rate 0.001 (:data:`LARGE_BATCH_FROM`, the ``full`` profile's) trains at :data:`LARGE_BATCH` instead only
+#: when that experiment passed on the validation objects (:data:`LARGE_BATCH_VALIDATED`: batch 256 given 1.3 times
+#: the images was no worse than batch 128), the worker trains on the fused marcher, and the benchmark's ``both``
+#: stage (the fused march, then the loop's bfloat16 step) ran at least :data:`LARGE_BATCH_SPEEDUP` times as many
+#: images a second at batch 256 as at 128: then a lease of fixed length shows batch 256 at least the images it was
+#: validated with. The warm-up is a share of the steps the budget chose (one epoch in 13, as validated).
+LARGE_BATCH_FROM = {"batch_size": 128, "lr": 1e-3}
+LARGE_BATCH = {"batch_size": 256, "lr": 4e-3, "warmup_share": 1 / 13}
+LARGE_BATCH_SPEEDUP = 1.3
+LARGE_BATCH_VALIDATED: bool | None = None        # None: the experiment is pending
 LOG = "job.log"
 
 
@@ -133,6 +148,38 @@ def marcher_choice(report: dict) -> dict:
     return {"gridcast": "auto", "reason": "the marchers agree: " + said}
 
 
+def batch_choice(report: dict, gridcast: str, recipe, args) -> dict:
+    """The batch the worker trains with, from the first-minute benchmark's JSON (``report``), the marcher
+    :func:`marcher_choice` chose (``gridcast``), the profile's ``recipe`` and the job's flags (``args``):
+    ``{"batch_size": None (the profile's) or 256, "lr", "warmup_share", "speedup", "reason"}`` by the rule of
+    :data:`LARGE_BATCH` (fixed before any GPU result)."""
+    def keep(reason, speedup=None):
+        return {"batch_size": None, "lr": None, "warmup_share": None, "speedup": speedup, "reason": reason}
+    if any(getattr(args, k, None) is not None for k in ("batch_size", "lr", "warmup_steps", "warmup_share")):
+        return keep("the batch or learning rate was given on the command line")
+    if {"batch_size": recipe.batch_size, "lr": recipe.lr} != LARGE_BATCH_FROM:
+        return keep(f"the rule is for batch {LARGE_BATCH_FROM['batch_size']} at learning rate "
+                    f"{LARGE_BATCH_FROM['lr']:g}; this profile trains at batch {recipe.batch_size}, {recipe.lr:g}")
+    if not LARGE_BATCH_VALIDATED:
+        return keep("batch256-e13-seeds " + ("is pending" if LARGE_BATCH_VALIDATED is None else
+                                             "did not pass on the validation objects"))
+    if not args.budget:
+        return keep("no --budget: the large batch's warm-up is a share of the steps a budget chooses")
+    if gridcast != "auto":
+        return keep("the worker trains on the torch march, whose speed the rule did not measure")
+    rows = {r.get("batch"): r.get("images_per_s") for r in (report.get("both") or {}).get("rows", [])}
+    small, large = rows.get(LARGE_BATCH_FROM["batch_size"]), rows.get(LARGE_BATCH["batch_size"])
+    if not (small and large):
+        return keep(f"the both stage did not measure batches {LARGE_BATCH_FROM['batch_size']} and "
+                    f"{LARGE_BATCH['batch_size']} (cut by its time limit?)")
+    speedup = round(large / small, 3)
+    said = (f"the fused march and the bfloat16 step ran {large:.0f} images/s at batch {LARGE_BATCH['batch_size']}, "
+            f"{small:.0f} at {LARGE_BATCH_FROM['batch_size']}: {speedup:.2f} times (at least {LARGE_BATCH_SPEEDUP})")
+    if speedup < LARGE_BATCH_SPEEDUP:
+        return keep("too little faster: " + said, speedup)
+    return {**LARGE_BATCH, "speedup": speedup, "reason": said}
+
+
 def first_minute(args) -> dict:
     """Run the first-minute benchmark for at most ``args.first_minute`` seconds (its JSON is rewritten after
     every stage, so a cut run keeps what it measured) and choose the worker's marcher from it."""
@@ -158,8 +205,11 @@ def first_minute(args) -> dict:
             "command": " ".join(["python", *[str(Path(c).relative_to(ROOT)) if c.startswith(str(ROOT)) else c
                                              for c in cmd[1:]]]),
             **marcher_choice(report), "report": report}
+    from hbeo.config import get_profile
+    done["batch"] = batch_choice(report, done["gridcast"], get_profile(args.profile).recipe, args)
+    batch = done["batch"]["batch_size"] or "the profile's"
     print(f"[job] first minute: {done['seconds']} s, stages {report.get('stages_done')}; marcher "
-          f"{done['gridcast']}: {done['reason']}", flush=True)
+          f"{done['gridcast']}: {done['reason']}; batch {batch}: {done['batch']['reason']}", flush=True)
     return done
 
 
@@ -212,7 +262,7 @@ def round_weights_bf16(path: Path) -> None:
 
 #: ``python -m hbeo train`` options the device job passes on (TrainOptions' names; None: the profile's)
 TRAIN_FLAGS = ("data", "backend", "class_balance", "epochs", "seed", "render_ahead", "draw_workers", "loss_weights",
-               "fc")
+               "fc", "batch_size", "lr", "warmup_steps")
 VAL_EVAL = "eval_val_hbeo_3dof.json"     # --split val: the validation objects' metrics (the run's own test file
                                          # keeps its name, eval_hbeo_3dof.json)
 
@@ -254,7 +304,7 @@ def fit_budget(run, args, t_start: float) -> dict:
     cal = run.train(train_options(args, name="calibration.hbeo", max_steps=args.calibrate), progress=False)
     calibration_s = time.perf_counter() - t
     row = training_history(run.dir.training(cal.path))[-1]
-    batch = run.profile.recipe.batch_size
+    batch = args.batch_size or run.profile.recipe.batch_size
     loop_s = row["step"] * batch / row["images_per_s"]
     step_s = loop_s / row["step"]
     fixed_s = max(calibration_s - loop_s, 0.0)
@@ -297,7 +347,10 @@ def worker(args) -> int:
                 state["budget"] = fit_budget(run, args, t_start)
                 _write_json(state_path, state)
             max_steps = state["budget"]["max_steps"]
-        opts = train_options(args, checkpoint_every=args.checkpoint_every, max_steps=max_steps)
+        extra = {}
+        if args.warmup_share:                           # a share of the steps the budget chose (LARGE_BATCH)
+            extra["warmup_steps"] = state["warmup_steps"] = max(1, round(args.warmup_share * max_steps))
+        opts = train_options(args, checkpoint_every=args.checkpoint_every, max_steps=max_steps, **extra)
         trained = run.train(opts, progress=False)
         state["stages"]["train_s"] = state["stages"].get("train_s", 0.0) + time.perf_counter() - t0
         state["resumed_from_step"] = resumed if state.get("resumed_from_step") is None else state["resumed_from_step"]
@@ -327,9 +380,10 @@ def worker(args) -> int:
     ck = load_checkpoint(ckpt) if ckpt.exists() else {}
     prof = run.profile
     steps = int(ck.get("step", 0))
+    batch = args.batch_size or prof.recipe.batch_size
     state.update(status="done", profile=prof.name, dataset=run.dataset.name, steps=steps, split=args.split,
                  train_options=train_flags(args),
-                 batch_size=prof.recipe.batch_size, images_seen=steps * prof.recipe.batch_size,
+                 batch_size=batch, lr=args.lr or prof.recipe.lr, images_seen=steps * batch,
                  image_size=list(prof.data.image_size),
                  train_data=train_flags(args).get("data", prof.data.train_data),
                  provenance=_read_json(prov),
@@ -354,6 +408,12 @@ def start_worker(args, state: dict) -> int:
         cmd += ["--budget", f"{left:.1f}", "--calibrate", str(args.calibrate), "--eval-reserve", str(args.eval_reserve)]
     for k, v in train_flags(args).items():
         cmd += ["--" + k.replace("_", "-"), str(v)]
+    large = fm.get("batch") or {}
+    if large.get("batch_size"):                  # batch_choice's rule chose the large batch
+        cmd += ["--batch-size", str(large["batch_size"]), "--lr", repr(large["lr"])]
+    share = large.get("warmup_share") or args.warmup_share
+    if share:
+        cmd += ["--warmup-share", repr(share)]
     cmd += ["--split", args.split]
     log = open(Path(args.run) / LOG, "ab")
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -423,6 +483,12 @@ def main(argv=None) -> int:
                    help="stream/torch: processes that draw the next march's poses ahead (default: up to 8 on a GPU)")
     g.add_argument("--loss-weights", metavar="C,O,P", help="gamma_c,gamma_o,gamma_p of the loss (1,1,1)")
     g.add_argument("--fc", metavar="W1,W2,W3", help="widths of HBEONet's three shared layers (the profile's)")
+    g.add_argument("--batch-size", type=int, help="images a step (the profile's; with --first-minute, chosen by "
+                   "the rule of LARGE_BATCH unless given)")
+    g.add_argument("--lr", type=float, help="peak learning rate (the profile's)")
+    g.add_argument("--warmup-steps", type=int, help="steps of the linear warm-up (100)")
+    g.add_argument("--warmup-share", type=float, help="with --budget: a warm-up of this share of the steps the "
+                   "budget chooses (what LARGE_BATCH's rule passes on)")
     p.add_argument("--first-minute", type=float, default=0, metavar="SECONDS",
                    help="a fresh job first runs benchmarks/bench_gpu_first_minute.py for at most SECONDS, in the "
                         "foreground (figures in lease.json's first_minute; the worker's marcher chosen from its "
@@ -437,6 +503,10 @@ def main(argv=None) -> int:
         p.error("--calibrate must be >= 1 and --eval-reserve >= 0")
     if (args.epochs is not None and args.epochs < 1) or (args.seed is not None and args.seed < 0):
         p.error("--epochs must be >= 1 and --seed >= 0")
+    if args.warmup_share is not None and not (args.budget and 0 < args.warmup_share < 1
+                                              and args.warmup_steps is None):
+        p.error(f"--warmup-share must be between 0 and 1, needs --budget and excludes --warmup-steps, "
+                f"got {args.warmup_share}")
     try:
         train_options(args)
     except ValueError as err:

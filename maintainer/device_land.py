@@ -166,7 +166,9 @@ def reproduction_md(run_dir: Path, lease: dict, gpu_eval: dict, rescored: dict |
                            + (", with uncommitted changes" if lease["source"].get("dirty") else ", clean")
                            if (lease.get("source") or {}).get("commit") else "commit not recorded") + ".",
              f"- Profile `{prof.name}`: {lease['image_size'][0]}×{lease['image_size'][1]} images, "
-             f"{lease.get('train_data')} data, batch {lease['batch_size']}; "
+             f"{lease.get('train_data')} data, batch {lease['batch_size']}"
+             + (f", peak learning rate {lease['lr']:g}" if lease.get("lr") else "")
+             + (f", warm-up {lease['warmup_steps']:,} steps" if lease.get("warmup_steps") else "") + "; "
              f"{lease['steps']:,} steps = {lease['images_seen']:,} image passes.",
              f"- Wall time: training {st.get('train_s', 0):.0f} s, evaluation {st.get('evaluate_s', 0):.0f} s"
              + (f"; the budget of {b['seconds']:.0f} s chose {b['max_steps']:,} steps from {b['calibration_steps']} "
@@ -179,6 +181,9 @@ def reproduction_md(run_dir: Path, lease: dict, gpu_eval: dict, rescored: dict |
         lines += [f"- First minute (`{FIRST_MINUTE}`): {fm['seconds']:.0f} s (limit {fm['limit_s']:.0f} s, exit "
                   f"{fm['exit']}), stages {', '.join(fm['report'].get('stages_done', []))}; marcher "
                   f"`{fm['gridcast']}`: {fm['reason']}."]
+        if fm.get("batch"):
+            chosen = fm["batch"]["batch_size"] or "the profile's"
+            lines += [f"- Batch by the first minute's rule: {chosen}: {fm['batch']['reason']}."]
     lines += ["", "## Headline on the test split", "",
               f"n = test objects / queries; 95 % intervals over test objects. The reference run is the `cpu` profile "
               f"on 2 CPU cores (`results/{REFERENCE}/`).", ""]

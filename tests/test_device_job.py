@@ -141,12 +141,19 @@ def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_
 def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_fit(tmp_path):
     run, out = tmp_path / "run", tmp_path / "out"
     # with training flags and the validation split (choosing a recipe: never the test split)
+    # (and a batch, learning rate and warm-up share of the budgeted steps, as batch_choice's large batch passes on)
     r = _job(run, out, "--budget", "120", "--calibrate", "3", "--eval-reserve", "20", "--split", "val",
-             "--class-balance", "sampler", "--seed", "1", "--loss-weights", "2,1,1", "--fc", "32,16,16")
+             "--class-balance", "sampler", "--seed", "1", "--loss-weights", "2,1,1", "--fc", "32,16,16",
+             "--batch-size", "8", "--lr", "0.002", "--warmup-share", "0.25")
     assert r.returncode == 0, r.stdout + r.stderr + (run / "job.log").read_text()[-3000:]
     lease = json.loads((out / "lease.json").read_text())
     assert lease["split"] == "val" and lease["train_options"] == {"class_balance": "sampler", "seed": 1,
-                                                                  "loss_weights": "2,1,1", "fc": "32,16,16"}
+                                                                  "loss_weights": "2,1,1", "fc": "32,16,16",
+                                                                  "batch_size": 8, "lr": 0.002}
+    assert lease["batch_size"] == 8 and lease["lr"] == 0.002 and lease["images_seen"] == 8 * lease["steps"]
+    assert lease["warmup_steps"] == max(1, round(0.25 * lease["budget"]["max_steps"]))
+    assert lease["provenance"]["options"]["warmup_steps"] == lease["warmup_steps"]
+    assert lease["provenance"]["options"]["batch_size"] == 8 and lease["provenance"]["options"]["lr"] == 0.002
     assert lease["provenance"]["options"]["fc"] == [32, 16, 16]
     assert lease["provenance"]["options"]["loss"] == {"classification": 2.0, "pose": 1.0, "coeffs": 1.0}
     val = json.loads((out / "eval_val_hbeo_3dof.json").read_text())
@@ -159,6 +166,41 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
     assert "budget 120 s" in (run / "job.log").read_text()
     bad = _job(tmp_path / "run2", tmp_path / "out3", "--budget", "-5")
     assert bad.returncode == 2 and "--budget" in bad.stderr
+    for flags in (["--warmup-share", "0.1"], ["--budget", "9", "--warmup-share", "1.5"],
+                  ["--budget", "9", "--warmup-share", "0.1", "--warmup-steps", "7"]):
+        bad = _job(tmp_path / "run2", tmp_path / "out3", *flags)
+        assert bad.returncode == 2 and "--warmup-share" in bad.stderr, flags
+
+
+def test_the_batch_is_256_only_when_validated_on_the_fused_marcher_and_fast_enough(monkeypatch):
+    job = _device_job_module()
+    from argparse import Namespace
+    from hbeo.config import get_profile
+    full = get_profile("full").recipe
+    assert (full.batch_size, full.lr) == (128, 1e-3)            # the rule's comparison point is the full job's
+    args = Namespace(budget=700.0, batch_size=None, lr=None, warmup_steps=None, warmup_share=None)
+    both = {"both": {"rows": [{"batch": 128, "images_per_s": 15000.0}, {"batch": 256, "images_per_s": 19500.0},
+                              {"batch": 512, "images_per_s": 25000.0}]}}
+    monkeypatch.setattr(job, "LARGE_BATCH_VALIDATED", True)
+    got = job.batch_choice(both, "auto", full, args)
+    assert (got["batch_size"], got["lr"], got["speedup"]) == (256, 4e-3, 1.3) and "1.30 times" in got["reason"]
+    assert got["warmup_share"] == 1 / 13
+    slow = {"both": {"rows": [{"batch": 128, "images_per_s": 15000.0}, {"batch": 256, "images_per_s": 19400.0}]}}
+    got = job.batch_choice(slow, "auto", full, args)
+    assert got["batch_size"] is None and got["speedup"] == 1.293 and "too little faster" in got["reason"]
+    for report, gridcast, recipe, a, word in (
+            (both, "torch", full, args, "torch march"),
+            ({"both": {"rows": both["both"]["rows"][:1]}}, "auto", full, args, "did not measure"),
+            ({}, "auto", full, args, "did not measure"),
+            (both, "auto", get_profile("cpu").recipe, args, "this profile trains at batch 64"),
+            (both, "auto", full, Namespace(**{**vars(args), "budget": None}), "no --budget"),
+            (both, "auto", full, Namespace(**{**vars(args), "lr": 2e-3}), "command line")):
+        got = job.batch_choice(report, gridcast, recipe, a)
+        assert got["batch_size"] is None and word in got["reason"], (word, got)
+    for validated, word in ((None, "pending"), (False, "did not pass")):
+        monkeypatch.setattr(job, "LARGE_BATCH_VALIDATED", validated)
+        got = job.batch_choice(both, "auto", full, args)
+        assert got["batch_size"] is None and word in got["reason"], got
 
 
 def test_the_marcher_is_the_fused_one_only_when_the_first_minute_found_the_two_agree():
@@ -204,6 +246,7 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     fm = lease["first_minute"]
     assert fm["exit"] == 0 and fm["report"]["stages_done"][:3] == ["setup", "compile", "agreement"]
     assert fm["report"]["setup"]["cpu_check"] and fm["gridcast"] == "auto"      # the interpreter: bit-equal
+    assert fm["batch"]["batch_size"] is None and fm["batch"]["reason"]          # the ci profile: not the rule's
     assert 0 < fm["seconds"] < 240 and "bench_gpu_first_minute.py" in fm["command"]
     assert abs(lease["budget"]["seconds"] - (400 - fm["seconds"])) < 0.2    # the worker's budget: what was left
     assert len(list(out.iterdir())) <= 8 and not (out / "first_minute.json").exists()   # inside lease.json
@@ -216,6 +259,7 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     assert re["iou_max_abs_diff"] == re["edt_max_rel_diff"] == 0
     md = (landed / "REPRODUCTION.md").read_text()
     assert "stream data" in md and "marcher `auto`" in md and "| class mean accuracy | 30 / 30 |" in md
+    assert "- Batch by the first minute's rule: the profile's: " in md and ", peak learning rate" in md
     assert lease["source"]["commit"].startswith("0123456789") and "- Code: commit `0123456789`, clean." in md
     assert json.loads((landed / "first_minute.json").read_text()) == fm["report"]
     assert (landed / "train_model" / "train_log.csv").exists()
