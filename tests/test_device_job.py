@@ -203,6 +203,32 @@ def test_the_batch_is_256_only_when_validated_on_the_fused_marcher_and_fast_enou
         assert got["batch_size"] is None and word in got["reason"], got
 
 
+def test_the_batch_rule_follows_its_experiment_and_reaches_the_worker(tmp_path, monkeypatch):
+    job = _device_job_module()
+    import tomllib
+    spec = tomllib.loads((ROOT / "experiments" / "cpu-modelnet10-vox30" / "53-batch256-e13-seeds.toml").read_text())
+    assert spec["name"] == "batch256-e13-seeds"          # the constant is that experiment's outcome, nothing else
+    assert job.LARGE_BATCH_VALIDATED == {"pending": None, "chosen": True, "not chosen": False}[spec["status"]]
+    seen = {}
+
+    class Popen:
+        def __init__(self, cmd, **kw):
+            seen["cmd"], self.pid = cmd, 12345
+    monkeypatch.setattr(job.subprocess, "Popen", Popen)
+    from argparse import Namespace
+    args = Namespace(profile="full", dataset="modelnet10-vox30", run=tmp_path, round_bf16=True, checkpoint_every=500,
+                     max_steps=None, budget=700.0, calibrate=40, eval_reserve=120.0, split="test", warmup_share=None,
+                     **{k: None for k in job.TRAIN_FLAGS})
+    large = {**job.LARGE_BATCH, "speedup": 1.4, "reason": "fast"}
+    job.start_worker(args, {"first_minute": {"seconds": 80.0, "gridcast": "auto", "batch": large}})
+    cmd = seen["cmd"]
+    assert cmd[cmd.index("--batch-size") + 1] == "256" and float(cmd[cmd.index("--lr") + 1]) == 4e-3
+    assert float(cmd[cmd.index("--warmup-share") + 1]) == 1 / 13 and cmd[cmd.index("--budget") + 1] == "620.0"
+    kept = {**large, "batch_size": None, "lr": None, "warmup_share": None}
+    job.start_worker(args, {"first_minute": {"seconds": 80.0, "gridcast": "auto", "batch": kept}})
+    assert not {"--batch-size", "--lr", "--warmup-share"} & set(seen["cmd"])
+
+
 def test_the_marcher_is_the_fused_one_only_when_the_first_minute_found_the_two_agree():
     choose = _device_job_module().marcher_choice
     agree = {"pixels": 19_660_800, "hit_torch_only": 0, "hit_triton_only": 0, "max_abs_diff_m": 0.0}
