@@ -15,6 +15,11 @@ time limit still returns what it measured. A stage that fails records its error 
 - ``agreement``: the same images (``--agree`` random objects and default-sampler poses) rendered by both
   marchers on the device: pixels, pixels whose depth differs (any bit), the largest and median |depth
   difference| over them (metres), hit/miss flips each way and the images with a flip.
+- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch (batches 128
+  and 256 decide the device job's batch: ``maintainer/device_job.py``'s ``batch_choice``; hence this stage
+  comes first after the agreement, so that a first minute cut by its time limit still has them). The training
+  loop end to end and the batched evaluation are what the device job then measures itself (``lease.json``:
+  ``budget``'s calibration, ``stages``; ``train_log.csv``'s images/s).
 - ``render``: images/s of :meth:`GridCaster.render` per marcher and batch (``--batches``): one untimed call,
   then calls for ``--seconds`` (at least one), the device synchronised before the clock is read. A torch
   batch whose march would need more than half the free device memory (~128 bytes a ray) is skipped.
@@ -23,10 +28,6 @@ time limit still returns what it measured. A stage that fails records its error 
   the loop's AdamW) per precision (``float32``; ``amp-float16`` with a GradScaler; ``amp-bfloat16``, the loop's:
   no scaler, :class:`hbeo.model.loop.TrainConfig`'s ``amp_dtype``)
   and batch (``--net-batches``), channels-last, on random depth; code of ``bench_gpu_step.py``.
-- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch (batches 128
-  and 256 decide the device job's batch: ``maintainer/device_job.py``'s ``batch_choice``). The training
-  loop end to end and the batched evaluation are what the device job then measures itself (``lease.json``:
-  ``budget``'s calibration, ``stages``; ``train_log.csv``'s images/s).
 - ``poses``: the host's time for a march's poses (``--pose-images``), drawn in this process and ahead in worker
   processes (``--pose-workers``), what the training loop pays before each march (``bench_draw_ahead.py``).
 
@@ -57,7 +58,7 @@ import sys
 import time
 from pathlib import Path
 
-STAGES = ("setup", "compile", "agreement", "render", "tiles", "network", "both", "poses")
+STAGES = ("setup", "compile", "agreement", "both", "render", "tiles", "network", "poses")
 PRECISIONS = ("float32", "amp-float16", "amp-bfloat16")
 LOOP_PRECISION = "amp-bfloat16"         # the training loop's (hbeo.model.loop.TrainConfig.amp_dtype; tested)
 TILES = [(16, 8, 1), (8, 8, 1), (32, 4, 1), (16, 16, 1), (32, 8, 1)]
@@ -253,15 +254,17 @@ def main(argv=None) -> None:
             d["rows"].append({"tile": list(tile), **speed("triton", batch, tile)})
             rep.write()
 
-    def network(d):
+    def steps() -> dict:
+        """HBEONet's training step per precision (one network and optimizer, made on first use)."""
+        if "step" in st:
+            return st["step"]
         from hbeo.model.loop import TrainConfig, optimizer
         from hbeo.model.network import HBEONet, NetConfig
         cfg = NetConfig(image_size=(W, H), conv_channels=tuple(prof.network.conv_channels),
                         fc=tuple(prof.network.fc), kernel=prof.network.kernel, rotation=prof.recipe.rotation)
         net = HBEONet(cfg).to(device).to(memory_format=torch.channels_last).train()
         opt = optimizer(net.parameters(), TrainConfig(lr=1e-4), device)
-        d["parameters_m"] = round(sum(p.numel() for p in net.parameters()) / 1e6, 2)
-        d["rows"] = []
+        st["parameters_m"] = round(sum(p.numel() for p in net.parameters()) / 1e6, 2)
         st["step"] = {}
         for precision in PRECISIONS:
             amp = precision.startswith("amp")
@@ -277,6 +280,12 @@ def main(argv=None) -> None:
                 scaler.step(opt)
                 scaler.update()
             st["step"][precision] = step
+        return st["step"]
+
+    def network(d):
+        d["rows"] = []
+        for precision, step in steps().items():
+            d["parameters_m"] = st["parameters_m"]
             for batch in args.net_batches:
                 row = {"precision": precision, "batch": batch}
                 try:
@@ -289,7 +298,7 @@ def main(argv=None) -> None:
 
     def both(d):
         d["rows"] = []
-        step = st["step"][LOOP_PRECISION]
+        step = steps()[LOOP_PRECISION]
         for batch in args.net_batches:
             obj, R, t = draw(batch)
             n, wall = timed_calls(lambda: step(render("triton", obj, R, t)), args.seconds,
@@ -304,8 +313,8 @@ def main(argv=None) -> None:
                          overlap=0.05 if args.cpu_check else 0.3))
 
     rep.stage("setup", setup)
-    for name, fn in (("compile", compile_), ("agreement", agreement), ("render", render_stage), ("tiles", tiles),
-                     ("network", network), ("both", both)):
+    for name, fn in (("compile", compile_), ("agreement", agreement), ("both", both), ("render", render_stage),
+                     ("tiles", tiles), ("network", network)):
         if "caster" not in st and name != "network":
             rep.data["errors"][name] = "no caster (the setup stage failed)"
             rep.data["stages_done"].append(name)

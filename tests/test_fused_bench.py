@@ -20,7 +20,7 @@ def test_the_first_minute_benchmark_runs_on_a_cpu(tmp_path):
     subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_gpu_first_minute.py"), "--cpu-check",
                     "--out", str(out)], check=True, timeout=300, capture_output=True, text=True)
     d = json.loads(out.read_text())
-    assert d["stages_done"] == ["setup", "compile", "agreement", "render", "tiles", "network", "both", "poses"]
+    assert d["stages_done"] == ["setup", "compile", "agreement", "both", "render", "tiles", "network", "poses"]
     assert d["poses"]["images"] == 64 and [w["identical"] for w in d["poses"]["workers"]] == [True]
     assert d["errors"] == {}, d["errors"]
     s = d["setup"]
