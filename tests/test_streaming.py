@@ -183,8 +183,10 @@ def test_torch_stream_batches_are_the_images_rendered_one_by_one(torch_stream):
     assert b.subspace is not None and base._ctx.prefilled
     for k, i in enumerate(idx):
         rec = b.records[i % len(b)]
+        # float32 sums of 27,000 products in two orders (torch's kernels and numpy's BLAS pick their blocking by
+        # CPU): on an AVX-512 Xeon a coefficient of 47.35 came out 5.9e-4 apart, 1.2e-5 of it; a wrong one is far off
         np.testing.assert_allclose(batch["coeffs"][k].numpy(), b.subspace.project(record_grid(rec)[None])[0],
-                                   rtol=1e-5, atol=1e-4)
+                                   rtol=5e-5, atol=1e-4)
     # a model batch: the memory source's keys, shapes and dtypes
     items = d.train.__getitems__(idx)
     assert _spec(items[0]) == _spec(d.train[idx[0]])
