@@ -283,9 +283,9 @@ def main(argv=None) -> None:
         return st["step"]
 
     def network(d):
-        d["rows"] = []
-        for precision, step in steps().items():
-            d["parameters_m"] = st["parameters_m"]
+        step_of = steps()
+        d.update(parameters_m=st["parameters_m"], rows=[])
+        for precision, step in step_of.items():
             for batch in args.net_batches:
                 row = {"precision": precision, "batch": batch}
                 try:
