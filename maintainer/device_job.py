@@ -35,10 +35,13 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    fused marcher and at least 1.3 times as fast).
 2. It waits for the worker until it finishes or ``--wait`` (counted from the call's start) runs out; then it says
    so: call again, on the same warm machine, to go on waiting (a cut worker is restarted from its checkpoint).
-3. It copies into ``--out`` (the device's ``$OUT``) what exists: ``lease.json``, the metrics
+3. It copies into ``--out`` (the device's ``$OUT``) what exists, every :data:`PACK_EVERY` seconds while it waits,
+   when it is stopped by a signal (SIGTERM: the device tool's time limit) and at its end, each file whole (a
+   temporary name, then renamed), so a call cut short still brings back the last pack: ``lease.json``, the metrics
    ``eval_hbeo_3dof.json``, the training curves ``train_log.csv``, ``provenance.json``, the worker's
    ``job.log``, and the model gzipped and split into parts of at most 15 MiB (``model.hbeo.gz.part00`` ...;
-   join them with ``cat model.hbeo.gz.part* | gunzip > model.hbeo``; ``lease.json`` holds its SHA-256):
+   join them with ``cat model.hbeo.gz.part* | gunzip > model.hbeo``; ``lease.json`` holds its SHA-256; packed
+   once the worker records it final, with what trained, before it evaluates: ``model_final``):
    at most 8 files, under 64 MiB. The paper's network (61 MB of float32 weights, plus a 31 MB subspace)
    fits only because the worker first rounds the weights to bfloat16 values (still float32, the low 16 bits
    zero, so they compress by half; ``--no-round`` keeps them): the evaluation scores that rounded model, the
@@ -55,7 +58,6 @@ import gzip
 import hashlib
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -67,6 +69,7 @@ sys.path.insert(0, str(ROOT))
 
 PART_BYTES = 15 * 2**20          # one file back from the device: at most 16 MiB
 MAX_PARTS = 3                    # beside 5 other files: 8 files and under 64 MiB in all
+PACK_EVERY = 10                  # seconds between the packs a waiting call makes (and one at its end)
 WARMUP_STEPS = 5                 # --budget: untimed training steps before the timed calibration
 STATE = "job_state.json"         # the worker's stages, written atomically by the worker
 FIRST_MINUTE = "first_minute.json"   # --first-minute: the benchmark's figures, in the run folder
@@ -202,6 +205,10 @@ def first_minute(args) -> dict:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
             code = "timeout"
+        except BaseException:                    # the job stopped by a signal: no benchmark left running
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            raise
     report = _read_json(out)
     done = {"seconds": round(time.perf_counter() - t0, 1), "limit_s": args.first_minute, "exit": code,
             "command": " ".join(["python", *[str(Path(c).relative_to(ROOT)) if c.startswith(str(ROOT)) else c
@@ -359,11 +366,13 @@ def worker(args) -> int:
         log = _read_json(run.dir.training_provenance(trained.path))
         state["n_params"] = log.get("n_params")
         _write_json(state_path, state)
-    prov = run.dir.training_provenance(run.dir.model)
     if args.round_bf16 and not state.get("weights_rounded_to"):
         state["unrounded_model_sha256"] = sha256_file(run.dir.model)
         round_weights_bf16(run.dir.model)
         state["weights_rounded_to"] = "bfloat16"
+        _write_json(state_path, state)
+    if not state.get("model_final"):    # recorded before the evaluation: a lease cut during it still brings back
+        state.update(trained_facts(run, args, ckpt), model_final=True)   # a model device_land.py can score here
         _write_json(state_path, state)
     t1 = time.perf_counter()
     print(f"[worker] trained: {run.dir.model}; evaluating on the {args.split} split", flush=True)
@@ -379,21 +388,26 @@ def worker(args) -> int:
     else:
         metrics = protocol.evaluation(run, "hbeo", "3dof", progress=False, device=device, batched=True)
     state["stages"]["evaluate_s"] = time.perf_counter() - t1
-    ck = load_checkpoint(ckpt) if ckpt.exists() else {}
-    prof = run.profile
-    steps = int(ck.get("step", 0))
-    batch = args.batch_size or prof.recipe.batch_size
-    state.update(status="done", profile=prof.name, dataset=run.dataset.name, steps=steps, split=args.split,
-                 train_options=train_flags(args),
-                 batch_size=batch, lr=args.lr or prof.recipe.lr, images_seen=steps * batch,
-                 image_size=list(prof.data.image_size),
-                 train_data=train_flags(args).get("data", prof.data.train_data),
-                 provenance=_read_json(prov),
-                 metrics=summary(metrics),
-                 command=" ".join(["python", str(Path(sys.argv[0]).resolve().relative_to(ROOT)), *sys.argv[1:]]))
+    state.update(status="done", metrics=summary(metrics))
     state["stages"]["wall_s"] = state["stages"].get("train_s", 0.0) + state["stages"]["evaluate_s"]
     _write_json(state_path, state)
     return 0
+
+
+def trained_facts(run, args, ckpt: Path) -> dict:
+    """What the worker trained, for ``lease.json``: profile, dataset, steps (the checkpoint's), batch, learning
+    rate, image passes, image size, data source, the training flags, the evaluation's split, the training's
+    provenance and the worker's command."""
+    from hbeo.model.loop import load_checkpoint
+    prof = run.profile
+    steps = int(load_checkpoint(ckpt).get("step", 0)) if ckpt.exists() else 0
+    batch = args.batch_size or prof.recipe.batch_size
+    return {"profile": prof.name, "dataset": run.dataset.name, "steps": steps, "split": args.split,
+            "train_options": train_flags(args), "batch_size": batch, "lr": args.lr or prof.recipe.lr,
+            "images_seen": steps * batch, "image_size": list(prof.data.image_size),
+            "train_data": train_flags(args).get("data", prof.data.train_data),
+            "provenance": _read_json(run.dir.training_provenance(run.dir.model)),
+            "command": " ".join(["python", str(Path(sys.argv[0]).resolve().relative_to(ROOT)), *sys.argv[1:]])}
 
 
 def start_worker(args, state: dict) -> int:
@@ -425,32 +439,43 @@ def start_worker(args, state: dict) -> int:
     return proc.pid
 
 
-def pack(run_dir: Path, out: Path, state: dict) -> list[Path]:
-    """Copy what must come back into ``out``: at most 8 files, none over :data:`PART_BYTES`."""
+def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> list[Path]:
+    """Copy what must come back into ``out``: at most 8 files, none over :data:`PART_BYTES`, each written to a
+    temporary name and renamed (:func:`hbeo.storage.atomic_file`), so a call cut by its time limit leaves whole
+    files. The model goes once the worker says it is final (``model_final``: trained, its weights rounded), its
+    SHA-256 and size into ``lease.json``; ``packed``, a dict one call keeps between its packs, remembers the model
+    file already there, so packing again while the call waits gzips it only when it changed."""
     from hbeo.rundir import RunDir
+    from hbeo.storage import atomic_file
     rd = RunDir(run_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
+    packed = {} if packed is None else packed
+
+    def put(path: Path, data: bytes) -> Path:
+        with atomic_file(path) as f:
+            f.write(data)
+        return path
+
     model = rd.model
-    if model.exists():
-        data = model.read_bytes()
-        state["model_sha256"], state["model_bytes"] = hashlib.sha256(data).hexdigest(), len(data)
-        packed = gzip.compress(data, compresslevel=6, mtime=0)
-        parts = [packed[i:i + PART_BYTES] for i in range(0, len(packed), PART_BYTES)]
-        if len(parts) > MAX_PARTS:
-            raise SystemExit(f"{model}: {len(data)} bytes, {len(packed)} gzipped, need {len(parts)} parts of 15 MiB; "
-                             f"at most {MAX_PARTS} fit the transfer limit beside the other files")
-        for i, part in enumerate(parts):
-            p = out / f"{model.name}.gz.part{i:02d}"
-            p.write_bytes(part)
-            written.append(p)
-    _write_json(out / "lease.json", state)
-    written.append(out / "lease.json")
+    if state.get("model_final") and model.exists():
+        key = (model.stat().st_size, model.stat().st_mtime_ns)
+        if packed.get("key") != key:
+            data = model.read_bytes()
+            gz = gzip.compress(data, compresslevel=6, mtime=0)
+            parts = [gz[i:i + PART_BYTES] for i in range(0, len(gz), PART_BYTES)]
+            if len(parts) > MAX_PARTS:
+                raise SystemExit(f"{model}: {len(data)} bytes, {len(gz)} gzipped, need {len(parts)} parts of 15 MiB; "
+                                 f"at most {MAX_PARTS} fit the transfer limit beside the other files")
+            files = [put(out / f"{model.name}.gz.part{i:02d}", part) for i, part in enumerate(parts)]
+            for stale in set(out.glob(f"{model.name}.gz.part*")) - set(files):    # an earlier, longer model
+                stale.unlink()
+            packed.update(key=key, files=files, model_sha256=hashlib.sha256(data).hexdigest(), model_bytes=len(data))
+        state["model_sha256"], state["model_bytes"] = packed["model_sha256"], packed["model_bytes"]
+    written = [*packed.get("files", []), put(out / "lease.json", json.dumps(state, indent=1).encode())]
     for src in (rd.evaluation("hbeo", "3dof"), run_dir / VAL_EVAL, rd.train_log(model), rd.training_provenance(model),
                 run_dir / LOG):
         if src.exists():
-            shutil.copyfile(src, out / src.name)
-            written.append(out / src.name)
+            written.append(put(out / src.name, src.read_bytes()))
     return written
 
 
@@ -524,29 +549,41 @@ def main(argv=None) -> int:
             _write_json(args.run / STATE, {**state, "status": "failed", "error": f"{type(err).__name__}: {err}"})
             raise
     t0 = time.monotonic()
-    state = _read_json(args.run / STATE)
-    if state.get("status") != "done" and not _alive(state.get("pid")):
-        if state.get("status") == "running":
-            print(f"[job] the worker {state.get('pid')} is gone: restarting it from its checkpoint", flush=True)
-        elif args.first_minute and "first_minute" not in state and not RunDir(args.run).model.exists():
-            state["first_minute"] = first_minute(args)
-            _write_json(args.run / STATE, state)
-        pid = start_worker(args, state)
-        _write_json(args.run / STATE, {**state, "pid": pid, "status": "starting"})
-        print(f"[job] worker {pid} started; log: {args.run / LOG}", flush=True)
-    while True:
+    packed, stopped, last_pack = {}, False, -PACK_EVERY
+    try:
         state = _read_json(args.run / STATE)
-        if state.get("status") in ("done", "failed") or not _alive(state.get("pid")):
-            break
-        if time.monotonic() - t0 > args.wait:
-            break
-        time.sleep(2)
+        if state.get("status") != "done" and not _alive(state.get("pid")):
+            if state.get("status") == "running":
+                print(f"[job] the worker {state.get('pid')} is gone: restarting it from its checkpoint", flush=True)
+            elif args.first_minute and "first_minute" not in state and not RunDir(args.run).model.exists():
+                state["first_minute"] = first_minute(args)
+                _write_json(args.run / STATE, state)
+            pid = start_worker(args, state)
+            _write_json(args.run / STATE, {**state, "pid": pid, "status": "starting"})
+            print(f"[job] worker {pid} started; log: {args.run / LOG}", flush=True)
+        while True:
+            state = _read_json(args.run / STATE)
+            if state.get("status") in ("done", "failed") or not _alive(state.get("pid")):
+                break
+            if time.monotonic() - t0 > args.wait:
+                break
+            if args.out and time.monotonic() - last_pack >= PACK_EVERY:    # what exists so far, should the
+                pack(args.run, Path(args.out), state, packed)              # call be cut by its time limit
+                last_pack = time.monotonic()
+            time.sleep(2)
+    except KeyboardInterrupt:             # SIGTERM (a time limit) or ^C: pack what exists; the worker goes on
+        stopped = True
+        state = _read_json(args.run / STATE)
     status = state.get("status")
     if status == "running" and not _alive(state.get("pid")):
         status = "failed"
     if args.out:
-        files = pack(args.run, Path(args.out), state)
+        files = pack(args.run, Path(args.out), state, packed)
         print(f"[job] {status}: packed {', '.join(f.name for f in files)} into {args.out}", flush=True)
+    if stopped and status not in ("done", "failed"):
+        print(f"[job] stopped by a signal after {time.monotonic() - t0:.0f} s: call again to go on waiting",
+              flush=True)
+        return 3
     if status == "done":
         print(json.dumps(state.get("metrics", {}), indent=1))
         return 0

@@ -105,16 +105,62 @@ def test_device_job_gzips_and_splits_a_model_over_15_mib_into_parts(tmp_path, mo
     run.mkdir()
     blob = os.urandom(2 * device_job.PART_BYTES + 123)
     (run / "model.hbeo").write_bytes(blob)
-    files = device_job.pack(run, tmp_path / "out", {"status": "done"})
-    parts = sorted((tmp_path / "out").glob("model.hbeo.gz.part*"))
+    out = tmp_path / "out"
+    files = device_job.pack(run, out, {"status": "running"})         # not final yet: no model goes
+    assert [f.name for f in files] == ["lease.json"] and "model_sha256" not in json.loads(files[0].read_text())
+    packed = {}
+    files = device_job.pack(run, out, {"status": "running", "model_final": True}, packed)
+    parts = sorted(out.glob("model.hbeo.gz.part*"))
     assert len(parts) == 3 and all(p.stat().st_size == device_job.PART_BYTES for p in parts[:2])
     assert gzip.decompress(b"".join(p.read_bytes() for p in parts)) == blob
-    lease = json.loads((tmp_path / "out" / "lease.json").read_text())
+    lease = json.loads((out / "lease.json").read_text())
     assert lease["model_bytes"] == len(blob) and len(lease["model_sha256"]) == 64
-    assert len(files) == 4
+    assert len(files) == 4 and sorted(p.name for p in out.iterdir()) == sorted(f.name for f in files)  # no temporary
+    for p in parts:                                                   # packed again while waiting: not gzipped again
+        p.write_bytes(b"left as it was")
+    device_job.pack(run, out, {"status": "done", "model_final": True}, packed)
+    assert all(p.read_bytes() == b"left as it was" for p in parts)
+    assert json.loads((out / "lease.json").read_text())["model_sha256"] == lease["model_sha256"]
+    small = os.urandom(device_job.PART_BYTES // 2)                    # a changed model: packed again, fewer parts
+    (run / "model.hbeo").write_bytes(small)
+    device_job.pack(run, out, {"status": "done", "model_final": True}, packed)
+    assert [p.name for p in sorted(out.glob("model.hbeo.gz.part*"))] == ["model.hbeo.gz.part00"]
+    assert gzip.decompress((out / "model.hbeo.gz.part00").read_bytes()) == small
     (run / "model.hbeo").write_bytes(os.urandom(3 * device_job.PART_BYTES + 1))   # too big even gzipped: refused
     with pytest.raises(SystemExit, match="at most 3 fit"):
-        device_job.pack(run, tmp_path / "out2", {"status": "done"})
+        device_job.pack(run, tmp_path / "out2", {"status": "done", "model_final": True})
+
+
+@pytest.mark.slow
+def test_a_call_stopped_by_its_time_limit_packs_what_exists_and_leaves_the_worker_running(tmp_path):
+    """The device tool ends a call that outruns its limit (SIGTERM): the call packs what exists (its earlier packs
+    are in --out already) and exits 3; the worker, in its own session, trains on."""
+    run, out = tmp_path / "run", tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    call = subprocess.Popen([sys.executable, str(JOB), "--profile", "ci", "--dataset", "procedural", "--run", str(run),
+                             "--out", str(out), "--wait", "600", "--checkpoint-every", "5"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.time() + 120
+        while not (out / "lease.json").exists() and time.time() < deadline:   # the first pack, while it waits
+            time.sleep(0.2)
+        assert (out / "lease.json").exists()
+        call.send_signal(signal.SIGTERM)
+        stdout, stderr = call.communicate(timeout=60)
+        assert call.returncode == 3, stdout + stderr
+        assert "stopped by a signal" in stdout and "packed lease.json" in stdout
+        state = json.loads((run / "job_state.json").read_text())
+        assert _device_job_module()._alive(state["pid"])        # the worker goes on
+        lease = json.loads((out / "lease.json").read_text())
+        assert lease["status"] in ("starting", "running") and not list(out.glob("*.tmp"))
+    finally:
+        call.kill()
+        pid = json.loads((run / "job_state.json").read_text()).get("pid") if (run / "job_state.json").exists() else None
+        if pid:
+            try:
+                os.killpg(os.getpgid(pid), signal.SIGKILL)
+            except ProcessLookupError:
+                pass
 
 
 def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_file):
@@ -291,6 +337,23 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     assert (landed / "train_model" / "train_log.csv").exists()
     cpu = json.loads((landed / "eval_hbeo_3dof_cpu.json").read_text())
     assert cpu["n_queries"] == 10 and cpu["request"]["per_class"] == 1 and cpu["request"]["device"] == "cpu"
+    assert lease["model_final"] and lease["steps"] == 4 and lease["images_seen"] == 4 * lease["batch_size"]
+    # a lease whose last call was cut during the evaluation: the model came back final, its evaluation did not
+    import shutil
+    cut_short = tmp_path / "cut_short"
+    shutil.copytree(out, cut_short)
+    (cut_short / "eval_hbeo_3dof.json").unlink()
+    (cut_short / "lease.json").write_text(json.dumps({**lease, "status": "running"}))
+    with pytest.raises(land.LandError, match="--evaluate-here"):
+        land.check(cut_short)
+    here = land.land(cut_short, tmp_path / "landed_here", evaluate=True)        # evaluated on this CPU instead
+    ev = json.loads((here / "eval_hbeo_3dof.json").read_text())
+    gpu = json.loads((out / "eval_hbeo_3dof.json").read_text())
+    assert ev["request"] == gpu["request"] and ev["per_query"]["pred"] == gpu["per_query"]["pred"]
+    assert json.loads((here / "lease.json").read_text())["evaluated_here"].startswith("cpu: ")
+    md = (here / "REPRODUCTION.md").read_text()
+    assert "evaluated here" in md and "no evaluation came back" in md and "| class mean accuracy | 30 / 30 |" in md
+    assert not (here / "rescore_cpu.json").exists()
     again = _job(run, tmp_path / "out2", "--first-minute", "240")        # finished: no second benchmark
     assert again.returncode == 0 and "first minute" not in again.stdout
     cut = _job(tmp_path / "run2", tmp_path / "out3", "--first-minute", "3", "--max-steps", "2", "--wait", "0")

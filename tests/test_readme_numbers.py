@@ -131,6 +131,11 @@ def test_a_run_at_the_paper_s_scale_joins_the_verdict_under_the_reference_run_s_
         assert "| HBEO (3-DOF) |" in rows[i - 1] and "12.90 M image passes on one GPU" in rows[i]
         assert rows[i].split(" | ")[2:] == rows[i - 1].split(" | ")[2:]   # the stand-in: the same figures
     assert rows[scaled[0]].startswith("|  | HBEO (3-DOF) at the paper's scale")
+    # a lease whose evaluation did not come back, evaluated at landing on a CPU (device_land.py --evaluate-here)
+    (full / "lease.json").write_text(json.dumps({"profile": "full", "images_seen": 12_902_400,
+                                                 "evaluated_here": "cpu: 2 cores"}))
+    rows = [r for r in readme.summary(ref).splitlines() if "at the paper's scale" in r]
+    assert len(rows) == len(scaled) and all("image passes on one GPU, evaluated on a CPU)" in r for r in rows)
 
 
 def test_the_model_table_lives_in_the_docs_not_the_readme():

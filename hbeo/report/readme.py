@@ -133,7 +133,9 @@ def summary(run) -> str:
         if scale is not None and key == ("hbeo", "3dof"):
             lease, est = scale
             line(measure, f"{r['label']} at the paper's scale (`{PAPER_SCALE}`: `{lease['profile']}` profile, "
-                          f"{lease['images_seen'] / 1e6:.2f} M image passes on one GPU)", est.loc[stat], stat, paper)
+                          f"{lease['images_seen'] / 1e6:.2f} M image passes on one GPU"
+                          + (", evaluated on a CPU" if lease.get("evaluated_here") else "") + ")",
+                 est.loc[stat], stat, paper)
 
     for key, (setting, method), name in VERDICT_TABLE1:
         row("Table I, class-mean accuracy", key, "class_accuracy", name, _paper_class_mean(rep, setting, method))
