@@ -299,7 +299,9 @@ def fit_budget(run, args, t_start: float) -> dict:
     throw-away model, to warm this process up (on an H200 the first 40 steps ran at a quarter of the speed
     of the rest: lease of 2026-11-26), then ``args.calibrate`` steps into another; from the calibration's
     wall time and its in-loop images/s, the fixed cost of a training (data on the device, validation,
-    saving) and the time per step. The steps are those left
+    saving) and the time per step; the calibration runs under :func:`hbeo.model.hostwaits.host_waits` (on a GPU
+    the host's waits for it, counted by the line that led to each: ``host_waits``, ``host_wait_sites``, the
+    twelve most). The steps are those left
     once the fixed cost, ``args.eval_reserve`` seconds for the evaluation and a 5 % margin are set aside
     (at least ``args.calibrate``: a budget too small still trains a little, and says so)."""
     from hbeo.model.loop import training_history
@@ -309,8 +311,11 @@ def fit_budget(run, args, t_start: float) -> dict:
     t = time.perf_counter()                  # warm-up first (CUDA context, cuDNN's autotuning, the caster's first
     run.train(train_options(args, name="calibration-warmup.hbeo", max_steps=WARMUP_STEPS), progress=False)  # batches)
     warmup_s = time.perf_counter() - t       # in this process: the real training after it is warm too
+    import torch
+    from hbeo.model.hostwaits import host_waits
     t = time.perf_counter()
-    cal = run.train(train_options(args, name="calibration.hbeo", max_steps=args.calibrate), progress=False)
+    with host_waits("cuda" if torch.cuda.is_available() else "cpu") as waits:   # where the host waits (a count)
+        cal = run.train(train_options(args, name="calibration.hbeo", max_steps=args.calibrate), progress=False)
     calibration_s = time.perf_counter() - t
     row = training_history(run.dir.training(cal.path))[-1]
     batch = args.batch_size or run.profile.recipe.batch_size
@@ -323,7 +328,8 @@ def fit_budget(run, args, t_start: float) -> dict:
            "warmup_s": round(warmup_s, 1), "calibration_steps": int(row["step"]),
            "calibration_s": round(calibration_s, 1), "step_s": round(step_s, 4), "fixed_s": round(fixed_s, 1),
            "calibration_images_per_s": round(row["images_per_s"], 1), "eval_reserve_s": args.eval_reserve,
-           "max_steps": max(steps, args.calibrate), "too_small": steps < args.calibrate}
+           "max_steps": max(steps, args.calibrate), "too_small": steps < args.calibrate,
+           "host_waits": sum(waits.values()), "host_wait_sites": dict(waits.most_common(12))}
     if args.max_steps:
         out["max_steps"] = min(out["max_steps"], args.max_steps)
     print(f"[worker] budget {args.budget:.0f} s: {step_s * 1000:.0f} ms a step of {batch} images "

@@ -207,6 +207,7 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
     assert lease["provenance"]["options"]["class_balance"] == "sampler" and lease["provenance"].get("seed") == 1
     b = lease["budget"]
     assert b["calibration_steps"] == 3 and b["step_s"] > 0 and b["seconds"] == 120
+    assert b["host_waits"] == 0 and b["host_wait_sites"] == {}        # a CPU: torch's sync debug mode is CUDA's
     assert 3 <= lease["steps"] <= b["max_steps"]   # the chosen steps, or the profile's all when fewer
     assert (run / "calibration.hbeo").exists() and (run / "model.hbeo").exists() and b["warmup_steps"] == 5
     assert "budget 120 s" in (run / "job.log").read_text()

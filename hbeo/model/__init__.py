@@ -8,8 +8,8 @@ model's camera (:mod:`~hbeo.model.preprocess`), the safe model file and inferenc
 (:mod:`~hbeo.model.inference`, :mod:`~hbeo.model.modelfile`), the completion rules that turn back-projected
 coefficients into a grid (:mod:`~hbeo.model.completion_rule`), reading a user's depth image
 (:mod:`~hbeo.model.depthfile`), checking an answer against the depth (:mod:`~hbeo.model.verify`), one
-depth image's answer, predicted then verified (:mod:`~hbeo.model.answer`) and data-parallel training
-(:mod:`~hbeo.model.distributed`).
+depth image's answer, predicted then verified (:mod:`~hbeo.model.answer`), data-parallel training
+(:mod:`~hbeo.model.distributed`) and where a CUDA run's host waits for the device (:mod:`~hbeo.model.hostwaits`).
 
 May import: the foundation modules, :mod:`hbeo.data`, :mod:`hbeo.subspace`, :mod:`hbeo.render`.
 """
