@@ -11,12 +11,14 @@
 #                                            there), nothing is committed; then print what travels (exit 3 when it
 #                                            still passes LIMIT_MIB, 64)
 #     bash maintainer/device_tree.sh restore    after it: move them back, track them again, drop the exclude lines
-# `slim` refuses a tree with staged changes (restore would mix them up); commit first.
+# `slim` refuses a tree with staged changes (restore would mix them up); commit first. While slim, a pre-commit hook
+# it adds (where the repository has none) refuses every commit: one would delete the results it untracked.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 MARK="# hbeo device_tree.sh slim"
 EXCLUDE=$(git rev-parse --git-path info/exclude)
 ASIDE=.device-aside
+HOOK=$(git rev-parse --git-path hooks/pre-commit)
 case "${1:-}" in
   slim)
     if ! git diff --cached --quiet; then
@@ -34,6 +36,11 @@ case "${1:-}" in
       printf '%s: /%s\n/%s\n' "$MARK" "$f" "$f" >> "$EXCLUDE"
       mkdir -p "$ASIDE/$(dirname "$f")" && mv "$f" "$ASIDE/$f"
     done
+    if [ ! -e "$HOOK" ]; then
+      mkdir -p "$(dirname "$HOOK")"
+      printf '#!/bin/sh\n%s\necho "error: the tree is slim for a device call (results/ and docs/history/ untracked in the index): run bash maintainer/device_tree.sh restore, then commit" >&2\nexit 1\n' "$MARK" > "$HOOK"
+      chmod +x "$HOOK"
+    fi
     echo "left behind (in $ASIDE/ until restore): ${#files[@]} files under results/ and docs/history/"
     tree=$( { git ls-files -z; git ls-files -z -o --exclude-standard; } | du -cb --files0-from=- 2>/dev/null | tail -1 | cut -f1)
     limit=${LIMIT_MIB:-64}
@@ -53,6 +60,7 @@ case "${1:-}" in
     for f in "${files[@]}"; do grep -vxF "/$f" "$tmp" > "$tmp.2" || true; mv "$tmp.2" "$tmp"; done
     cat "$tmp" > "$EXCLUDE" && rm -f "$tmp"
     git reset -q -- "${files[@]}"
+    if grep -qF "$MARK" "$HOOK" 2>/dev/null; then rm -f "$HOOK"; fi
     echo "tracked again: ${#files[@]} files"
     ;;
   *)

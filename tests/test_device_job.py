@@ -436,7 +436,11 @@ def test_device_tree_slim_leaves_the_committed_results_and_history_behind_and_re
                                   "results/a/table.csv", "docs/history/log.md"}
     assert (repo / ".device-aside/results/a/model.hbeo").read_text() == "results/a/model.hbeo"   # kept aside
     assert run("slim").returncode == 2                              # twice: refused
+    commit = subprocess.run(["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "y"],
+                            capture_output=True, text=True)           # it would delete the results: refused
+    assert commit.returncode != 0 and "device_tree.sh restore" in commit.stderr
     assert run("restore").returncode == 0
+    assert not (repo / ".git/hooks/pre-commit").exists()
     over = subprocess.run(["bash", str(repo / "maintainer" / "device_tree.sh"), "slim"], capture_output=True,
                           text=True, env={**os.environ, "LIMIT_MIB": "0"})   # what is left still too big: said
     assert over.returncode == 3 and "still over 0 MiB" in over.stderr
@@ -446,3 +450,9 @@ def test_device_tree_slim_leaves_the_committed_results_and_history_behind_and_re
     assert "model.hbeo" not in (repo / ".git/info/exclude").read_text()
     git("rm", "-q", "--cached", "hbeo/x.py")                        # staged changes: slim refuses
     assert run("slim").returncode == 2
+    git("reset", "-q", "hbeo/x.py")
+    own = repo / ".git" / "hooks" / "pre-commit"                   # the repository's own hook: left as it is
+    own.parent.mkdir(exist_ok=True)
+    own.write_text("#!/bin/sh\nexit 0\n")
+    assert run("slim").returncode == 0 and run("restore").returncode == 0
+    assert own.read_text() == "#!/bin/sh\nexit 0\n"
