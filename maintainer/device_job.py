@@ -448,9 +448,9 @@ def start_worker(args, state: dict) -> int:
 def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> list[Path]:
     """Copy what must come back into ``out``: at most 8 files, none over :data:`PART_BYTES`, each written to a
     temporary name and renamed (:func:`hbeo.storage.atomic_file`), so a call cut by its time limit leaves whole
-    files. The model goes once the worker says it is final (``model_final``: trained, its weights rounded), its
-    SHA-256 and size into ``lease.json``; ``packed``, a dict one call keeps between its packs, remembers the model
-    file already there, so packing again while the call waits gzips it only when it changed."""
+    files. The model goes once the worker says it is final (``model_final``: trained, rounded unless
+    ``--no-round``), its SHA-256 and size into ``lease.json``; ``packed``, a dict one call keeps between its packs,
+    remembers the model file already there, so packing again while the call waits gzips it only when it changed."""
     from hbeo.rundir import RunDir
     from hbeo.storage import atomic_file
     rd = RunDir(run_dir)

@@ -85,7 +85,8 @@ def joined_model(src: Path, lease: dict) -> bytes:
 def check(src: Path, evaluate_here: bool = False) -> dict:
     """Every check of the module docstring; returns ``{"lease", "evaluation", "model_bytes"}``. With
     ``evaluate_here``, a job that did not finish lands without its evaluation (``evaluation`` None) when the worker
-    had recorded its model final (``model_final``: trained and rounded) and the model came back whole."""
+    had recorded its model final (``model_final``: trained, and rounded where the job rounds) and the model came
+    back whole."""
     src = Path(src)
     if not src.is_dir():
         raise LandError(f"{src}: not a folder")
