@@ -31,8 +31,8 @@ One call does what is left, never more than ``--wait`` seconds in the foreground
    foreground for at most that long (``--cpu-check`` where there is no GPU); its figures go into ``lease.json``'s
    ``first_minute``, the worker's ``--budget`` is what is left of the job's, and the marcher the worker trains
    with follows the benchmark's agreement stage (:func:`marcher_choice`, a rule fixed before any GPU result), and
-   so does its batch (:func:`batch_choice`: 256 instead of the ``full`` profile's 128 only where validated, on the
-   fused marcher and at least 1.3 times as fast).
+   so does its batch (:func:`batch_choice`: 256, or 512, instead of the ``full`` profile's 128 only where
+   validated, on the fused marcher and at least 1.3, or 1.8, times as fast).
 2. It waits for the worker until it finishes or ``--wait`` (counted from the call's start) runs out; then it says
    so: call again, on the same warm machine, to go on waiting (a cut worker is restarted from its checkpoint).
 3. It copies into ``--out`` (the device's ``$OUT``) what exists, every :data:`PACK_EVERY` seconds while it waits,
@@ -81,20 +81,22 @@ FIRST_MINUTE = "first_minute.json"   # --first-minute: the benchmark's figures, 
 #: from 1 m on, and far below the sensor noise).
 AGREE_MAX_FLIP_SHARE = 1e-5
 AGREE_MAX_DEPTH_M = 1e-3
-#: --first-minute's rule for the batch, fixed before any GPU result (experiment ``batch256-e13-seeds``,
-#: experiments/cpu-modelnet10-vox30/53-batch256-e13-seeds.toml): a job whose profile trains at batch 128 and peak
-#: learning rate 0.001 (:data:`LARGE_BATCH_FROM`, the ``full`` profile's) trains at :data:`LARGE_BATCH` instead only
-#: when that experiment passed on the validation objects (:data:`LARGE_BATCH_VALIDATED`: batch 256 given 1.3 times
-#: the images of batch 128 fell at most 1 point of class mean and 2 of poses within 30 degrees below it, over three
-#: training seeds a side), the worker trains on the fused marcher, and the benchmark's ``both``
-#: stage (the fused march, then the loop's bfloat16 step) ran at least :data:`LARGE_BATCH_SPEEDUP` times as many
-#: images a second at batch 256 as at 128: then a lease of fixed length shows batch 256 at least the images it was
-#: validated with. The warm-up is a share of the steps the budget chose (one epoch in 13, as validated).
+#: --first-minute's rule for the batch, fixed before any GPU result: a job whose profile trains at batch 128 and peak
+#: learning rate 0.001 (:data:`LARGE_BATCH_FROM`, the ``full`` profile's) trains at the largest batch of
+#: :data:`LARGE_BATCHES` whose experiment (experiments/cpu-modelnet10-vox30/) passed on the validation objects
+#: (``validated``: batch B given ``min_speedup`` times the images of batch 128 fell at most 1 point of class mean and
+#: 2 of poses within 30 degrees below it, over three training seeds a side) and whose ``both`` stage (the fused
+#: march, then the loop's bfloat16 step) ran at least ``min_speedup`` times as many images a second at batch B as at
+#: 128, when the worker trains on the fused marcher: then a lease of fixed length shows batch B at least the
+#: images it was validated with. The warm-up is a share of the steps the budget chose (one epoch in the
+#: validated epochs). ``validated`` is each experiment's outcome: None while pending, False when it missed.
 LARGE_BATCH_FROM = {"batch_size": 128, "lr": 1e-3}
-LARGE_BATCH = {"batch_size": 256, "lr": 4e-3, "warmup_share": 1 / 13}
-LARGE_BATCH_SPEEDUP = 1.3
-LARGE_BATCH_VALIDATED: bool | None = True        # passed (2026-12-06): class mean +1.1, within 30 deg +5.0
-                                                 # points over 3 seeds a side (None: pending; False: missed)
+LARGE_BATCHES = (
+    {"batch_size": 512, "lr": 8e-3, "warmup_share": 1 / 18, "min_speedup": 1.8, "experiment": "batch512-e18-seeds",
+     "validated": None},         # pending: rule committed 2026-12-06
+    {"batch_size": 256, "lr": 4e-3, "warmup_share": 1 / 13, "min_speedup": 1.3, "experiment": "batch256-e13-seeds",
+     "validated": True},         # passed (2026-12-06): class mean +1.1, within 30 deg +5.0 points over 3 seeds a side
+)
 LOG = "job.log"
 
 
@@ -156,33 +158,44 @@ def marcher_choice(report: dict) -> dict:
 def batch_choice(report: dict, gridcast: str, recipe, args) -> dict:
     """The batch the worker trains with, from the first-minute benchmark's JSON (``report``), the marcher
     :func:`marcher_choice` chose (``gridcast``), the profile's ``recipe`` and the job's flags (``args``):
-    ``{"batch_size": None (the profile's) or 256, "lr", "warmup_share", "speedup", "reason"}`` by the rule of
-    :data:`LARGE_BATCH` (fixed before any GPU result)."""
+    ``{"batch_size": None (the profile's) or one of LARGE_BATCHES', "lr", "warmup_share", "speedup" (measured, of
+    the batch that decided), "reason"}`` by the rule of :data:`LARGE_BATCHES` (fixed before any GPU result)."""
     def keep(reason, speedup=None):
         return {"batch_size": None, "lr": None, "warmup_share": None, "speedup": speedup, "reason": reason}
     if any(getattr(args, k, None) is not None for k in ("batch_size", "lr", "warmup_steps", "warmup_share")):
         return keep("the batch or learning rate was given on the command line")
+    base = LARGE_BATCH_FROM["batch_size"]
     if {"batch_size": recipe.batch_size, "lr": recipe.lr} != LARGE_BATCH_FROM:
-        return keep(f"the rule is for batch {LARGE_BATCH_FROM['batch_size']} at learning rate "
-                    f"{LARGE_BATCH_FROM['lr']:g}; this profile trains at batch {recipe.batch_size}, {recipe.lr:g}")
-    if not LARGE_BATCH_VALIDATED:
-        return keep("batch256-e13-seeds " + ("is pending" if LARGE_BATCH_VALIDATED is None else
-                                             "did not pass on the validation objects"))
+        return keep(f"the rule is for batch {base} at learning rate {LARGE_BATCH_FROM['lr']:g}; this profile "
+                    f"trains at batch {recipe.batch_size}, {recipe.lr:g}")
+    if not any(t["validated"] for t in LARGE_BATCHES):
+        return keep("; ".join(f"{t['experiment']} " + ("is pending" if t["validated"] is None else
+                                                      "did not pass on the validation objects") for t in LARGE_BATCHES))
     if not args.budget:
         return keep("no --budget: the large batch's warm-up is a share of the steps a budget chooses")
     if gridcast != "auto":
         return keep("the worker trains on the torch march, whose speed the rule did not measure")
     rows = {r.get("batch"): r.get("images_per_s") for r in (report.get("both") or {}).get("rows", [])}
-    small, large = rows.get(LARGE_BATCH_FROM["batch_size"]), rows.get(LARGE_BATCH["batch_size"])
-    if not (small and large):
-        return keep(f"the both stage did not measure batches {LARGE_BATCH_FROM['batch_size']} and "
-                    f"{LARGE_BATCH['batch_size']} (cut by its time limit?)")
-    speedup = round(large / small, 3)
-    said = (f"the fused march and the bfloat16 step ran {large:.0f} images/s at batch {LARGE_BATCH['batch_size']}, "
-            f"{small:.0f} at {LARGE_BATCH_FROM['batch_size']}: {speedup:.2f} times (at least {LARGE_BATCH_SPEEDUP})")
-    if speedup < LARGE_BATCH_SPEEDUP:
-        return keep("too little faster: " + said, speedup)
-    return {**LARGE_BATCH, "speedup": speedup, "reason": said}
+    small, passed_over, speedup = rows.get(base), [], None
+    for tier in LARGE_BATCHES:                   # the largest first
+        b = tier["batch_size"]
+        if not tier["validated"]:
+            passed_over.append(f"batch {b}: {tier['experiment']} " + ("is pending" if tier["validated"] is None
+                                                                      else "did not pass on the validation objects"))
+            continue
+        large = rows.get(b)
+        if not (small and large):
+            passed_over.append(f"batch {b}: the both stage did not measure batches {base} and {b} (cut by its "
+                               "time limit?)")
+            continue
+        speedup = round(large / small, 3)
+        said = (f"the fused march and the bfloat16 step ran {large:.0f} images/s at batch {b}, {small:.0f} at "
+                f"{base}: {speedup:.2f} times (at least {tier['min_speedup']})")
+        if speedup >= tier["min_speedup"]:
+            return {"batch_size": b, "lr": tier["lr"], "warmup_share": tier["warmup_share"], "speedup": speedup,
+                    "reason": "; ".join([said, *(f"passed over {p}" for p in passed_over)])}
+        passed_over.append(f"batch {b}: too little faster: " + said)
+    return keep("; ".join(passed_over), speedup)
 
 
 def first_minute(args) -> dict:
@@ -363,7 +376,7 @@ def worker(args) -> int:
                 _write_json(state_path, state)
             max_steps = state["budget"]["max_steps"]
         extra = {}
-        if args.warmup_share:                           # a share of the steps the budget chose (LARGE_BATCH)
+        if args.warmup_share:                           # a share of the steps the budget chose (LARGE_BATCHES)
             extra["warmup_steps"] = state["warmup_steps"] = max(1, round(args.warmup_share * max_steps))
         opts = train_options(args, checkpoint_every=args.checkpoint_every, max_steps=max_steps, **extra)
         trained = run.train(opts, progress=False)
@@ -517,11 +530,11 @@ def main(argv=None) -> int:
     g.add_argument("--loss-weights", metavar="C,O,P", help="gamma_c,gamma_o,gamma_p of the loss (1,1,1)")
     g.add_argument("--fc", metavar="W1,W2,W3", help="widths of HBEONet's three shared layers (the profile's)")
     g.add_argument("--batch-size", type=int, help="images a step (the profile's; with --first-minute, chosen by "
-                   "the rule of LARGE_BATCH unless given)")
+                   "the rule of LARGE_BATCHES unless given)")
     g.add_argument("--lr", type=float, help="peak learning rate (the profile's)")
     g.add_argument("--warmup-steps", type=int, help="steps of the linear warm-up (100)")
     g.add_argument("--warmup-share", type=float, help="with --budget: a warm-up of this share of the steps the "
-                   "budget chooses (what LARGE_BATCH's rule passes on)")
+                   "budget chooses (what LARGE_BATCHES' rule passes on)")
     p.add_argument("--first-minute", type=float, default=0, metavar="SECONDS",
                    help="a fresh job first runs benchmarks/bench_gpu_first_minute.py for at most SECONDS, in the "
                         "foreground (figures in lease.json's first_minute; the worker's marcher chosen from its "

@@ -219,19 +219,38 @@ def test_device_job_with_a_budget_times_a_calibration_and_trains_the_steps_that_
         assert bad.returncode == 2 and "--warmup-share" in bad.stderr, flags
 
 
-def test_the_batch_is_256_only_when_validated_on_the_fused_marcher_and_fast_enough(monkeypatch):
+def _tiers(job, **validated):
+    """LARGE_BATCHES with the given outcomes (``b512=True``, ``b256=None``, ...)."""
+    return tuple({**t, "validated": validated.get(f"b{t['batch_size']}", t["validated"])} for t in job.LARGE_BATCHES)
+
+
+def test_the_batch_is_a_larger_one_only_when_validated_on_the_fused_marcher_and_fast_enough(monkeypatch):
     job = _device_job_module()
     from argparse import Namespace
     from hbeo.config import get_profile
     full = get_profile("full").recipe
     assert (full.batch_size, full.lr) == (128, 1e-3)            # the rule's comparison point is the full job's
+    assert [t["batch_size"] for t in job.LARGE_BATCHES] == [512, 256]            # the largest first
     args = Namespace(budget=700.0, batch_size=None, lr=None, warmup_steps=None, warmup_share=None)
     both = {"both": {"rows": [{"batch": 128, "images_per_s": 15000.0}, {"batch": 256, "images_per_s": 19500.0},
                               {"batch": 512, "images_per_s": 25000.0}]}}
-    monkeypatch.setattr(job, "LARGE_BATCH_VALIDATED", True)
+    monkeypatch.setattr(job, "LARGE_BATCHES", _tiers(job, b512=None, b256=True))
     got = job.batch_choice(both, "auto", full, args)
     assert (got["batch_size"], got["lr"], got["speedup"]) == (256, 4e-3, 1.3) and "1.30 times" in got["reason"]
-    assert got["warmup_share"] == 1 / 13
+    assert got["warmup_share"] == 1 / 13 and "passed over batch 512: batch512-e18-seeds is pending" in got["reason"]
+    monkeypatch.setattr(job, "LARGE_BATCHES", _tiers(job, b512=True, b256=True))
+    got = job.batch_choice(both, "auto", full, args)              # 512 at 1.67 times: short of its 1.8
+    assert got["batch_size"] == 256 and "batch 512: too little faster" in got["reason"] and "1.67 times" in got["reason"]
+    fast = {"both": {"rows": [{"batch": 128, "images_per_s": 15000.0}, {"batch": 256, "images_per_s": 19500.0},
+                              {"batch": 512, "images_per_s": 27000.0}]}}
+    got = job.batch_choice(fast, "auto", full, args)
+    assert (got["batch_size"], got["lr"], got["warmup_share"], got["speedup"]) == (512, 8e-3, 1 / 18, 1.8)
+    cut = {"both": {"rows": fast["both"]["rows"][:2]}}           # 512 not measured: the next one down decides
+    got = job.batch_choice(cut, "auto", full, args)
+    assert got["batch_size"] == 256 and "batch 512: the both stage did not measure" in got["reason"]
+    monkeypatch.setattr(job, "LARGE_BATCHES", _tiers(job, b512=False, b256=True))
+    got = job.batch_choice(fast, "auto", full, args)
+    assert got["batch_size"] == 256 and "batch512-e18-seeds did not pass" in got["reason"]
     slow = {"both": {"rows": [{"batch": 128, "images_per_s": 15000.0}, {"batch": 256, "images_per_s": 19400.0}]}}
     got = job.batch_choice(slow, "auto", full, args)
     assert got["batch_size"] is None and got["speedup"] == 1.293 and "too little faster" in got["reason"]
@@ -245,17 +264,19 @@ def test_the_batch_is_256_only_when_validated_on_the_fused_marcher_and_fast_enou
         got = job.batch_choice(report, gridcast, recipe, a)
         assert got["batch_size"] is None and word in got["reason"], (word, got)
     for validated, word in ((None, "pending"), (False, "did not pass")):
-        monkeypatch.setattr(job, "LARGE_BATCH_VALIDATED", validated)
+        monkeypatch.setattr(job, "LARGE_BATCHES", _tiers(job, b512=validated, b256=validated))
         got = job.batch_choice(both, "auto", full, args)
-        assert got["batch_size"] is None and word in got["reason"], got
+        assert got["batch_size"] is None and word in got["reason"] and "batch256-e13-seeds" in got["reason"], got
 
 
-def test_the_batch_rule_follows_its_experiment_and_reaches_the_worker(tmp_path, monkeypatch):
+def test_the_batch_rule_follows_its_experiments_and_reaches_the_worker(tmp_path, monkeypatch):
     job = _device_job_module()
     import tomllib
-    spec = tomllib.loads((ROOT / "experiments" / "cpu-modelnet10-vox30" / "53-batch256-e13-seeds.toml").read_text())
-    assert spec["name"] == "batch256-e13-seeds"          # the constant is that experiment's outcome, nothing else
-    assert job.LARGE_BATCH_VALIDATED == {"pending": None, "chosen": True, "not chosen": False}[spec["status"]]
+    for tier in job.LARGE_BATCHES:                        # each outcome is its experiment's, nothing else
+        spec, = (ROOT / "experiments" / "cpu-modelnet10-vox30").glob(f"*-{tier['experiment']}.toml")
+        spec = tomllib.loads(spec.read_text())
+        assert tier["validated"] == {"pending": None, "chosen": True, "not chosen": False}[spec["status"]], tier
+        assert f"--batch-size {tier['batch_size']} --lr {tier['lr']:g}" in spec["row"]["command"]
     seen = {}
 
     class Popen:
@@ -266,7 +287,9 @@ def test_the_batch_rule_follows_its_experiment_and_reaches_the_worker(tmp_path, 
     args = Namespace(profile="full", dataset="modelnet10-vox30", run=tmp_path, round_bf16=True, checkpoint_every=500,
                      max_steps=None, budget=700.0, calibrate=40, eval_reserve=120.0, split="test", warmup_share=None,
                      **{k: None for k in job.TRAIN_FLAGS})
-    large = {**job.LARGE_BATCH, "speedup": 1.4, "reason": "fast"}
+    tier = job.LARGE_BATCHES[-1]
+    large = {"batch_size": tier["batch_size"], "lr": tier["lr"], "warmup_share": tier["warmup_share"],
+             "speedup": 1.4, "reason": "fast"}
     job.start_worker(args, {"first_minute": {"seconds": 80.0, "gridcast": "auto", "batch": large}})
     cmd = seen["cmd"]
     assert cmd[cmd.index("--batch-size") + 1] == "256" and float(cmd[cmd.index("--lr") + 1]) == 4e-3
