@@ -594,7 +594,7 @@ def main(argv=None) -> int:
         stopped = True
         state = _read_json(args.run / STATE)
     status = state.get("status")
-    if status == "running" and not _alive(state.get("pid")):
+    if status in ("starting", "running") and not _alive(state.get("pid")):    # died, before or after it started
         status = "failed"
     if args.out:
         files = pack(args.run, Path(args.out), state, packed)
