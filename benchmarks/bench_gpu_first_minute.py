@@ -15,8 +15,8 @@ time limit still returns what it measured. A stage that fails records its error 
 - ``agreement``: the same images (``--agree`` random objects and default-sampler poses) rendered by both
   marchers on the device: pixels, pixels whose depth differs (any bit), the largest and median |depth
   difference| over them (metres), hit/miss flips each way and the images with a flip.
-- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch (batches 128
-  and 256 decide the device job's batch: ``maintainer/device_job.py``'s ``batch_choice``; hence this stage
+- ``both``: the fused marcher's batch then the loop's ``amp-bfloat16`` step on it, per network batch (batches 128,
+  256 and 512 decide the device job's batch: ``maintainer/device_job.py``'s ``batch_choice``; hence this stage
   comes first after the agreement, so that a first minute cut by its time limit still has them). The training
   loop end to end and the batched evaluation are what the device job then measures itself (``lease.json``:
   ``budget``'s calibration, ``stages``; ``train_log.csv``'s images/s).
@@ -74,7 +74,7 @@ def parse(argv=None):
     ap.add_argument("--seconds", type=float, default=1.5, help="timing per figure (1.5 s)")
     ap.add_argument("--batches", default="512,2048,8192", help="renderer batches")
     ap.add_argument("--net-batches", default="128,256,512,2048",
-                    help="network batches (128 and 256 first: the device job's batch rule reads them)")
+                    help="network batches (128, 256 and 512 first: the device job's batch rule reads them)")
     ap.add_argument("--agree", type=int, default=256, help="images of the agreement stage (256)")
     ap.add_argument("--pose-images", type=int, default=2048, help="images of a march in the poses stage (2048)")
     ap.add_argument("--pose-workers", default="4,8", help="worker processes of the poses stage (4,8)")
