@@ -162,6 +162,10 @@ def batch_choice(report: dict, gridcast: str, recipe, args) -> dict:
     the batch that decided), "reason"}`` by the rule of :data:`LARGE_BATCHES` (fixed before any GPU result)."""
     def keep(reason, speedup=None):
         return {"batch_size": None, "lr": None, "warmup_share": None, "speedup": speedup, "reason": reason}
+
+    def unvalidated(tier) -> str:
+        return tier["experiment"] + (" is pending" if tier["validated"] is None else
+                                     " did not pass on the validation objects")
     if any(getattr(args, k, None) is not None for k in ("batch_size", "lr", "warmup_steps", "warmup_share")):
         return keep("the batch or learning rate was given on the command line")
     base = LARGE_BATCH_FROM["batch_size"]
@@ -169,8 +173,7 @@ def batch_choice(report: dict, gridcast: str, recipe, args) -> dict:
         return keep(f"the rule is for batch {base} at learning rate {LARGE_BATCH_FROM['lr']:g}; this profile "
                     f"trains at batch {recipe.batch_size}, {recipe.lr:g}")
     if not any(t["validated"] for t in LARGE_BATCHES):
-        return keep("; ".join(f"{t['experiment']} " + ("is pending" if t["validated"] is None else
-                                                      "did not pass on the validation objects") for t in LARGE_BATCHES))
+        return keep("; ".join(unvalidated(t) for t in LARGE_BATCHES))
     if not args.budget:
         return keep("no --budget: the large batch's warm-up is a share of the steps a budget chooses")
     if gridcast != "auto":
@@ -180,8 +183,7 @@ def batch_choice(report: dict, gridcast: str, recipe, args) -> dict:
     for tier in LARGE_BATCHES:                   # the largest first
         b = tier["batch_size"]
         if not tier["validated"]:
-            passed_over.append(f"batch {b}: {tier['experiment']} " + ("is pending" if tier["validated"] is None
-                                                                      else "did not pass on the validation objects"))
+            passed_over.append(f"batch {b}: {unvalidated(tier)}")
             continue
         large = rows.get(b)
         if not (small and large):
@@ -477,7 +479,8 @@ def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> l
 
     model = rd.model
     if state.get("model_final") and model.exists():
-        key = (model.stat().st_size, model.stat().st_mtime_ns)
+        st = model.stat()
+        key = (st.st_size, st.st_mtime_ns)
         if packed.get("key") != key:
             data = model.read_bytes()
             gz = gzip.compress(data, compresslevel=6, mtime=0)
@@ -490,7 +493,8 @@ def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> l
                 stale.unlink()
             packed.update(key=key, files=files, model_sha256=hashlib.sha256(data).hexdigest(), model_bytes=len(data))
         state["model_sha256"], state["model_bytes"] = packed["model_sha256"], packed["model_bytes"]
-    written = [*packed.get("files", []), put(out / "lease.json", json.dumps(state, indent=1).encode())]
+    _write_json(out / "lease.json", state)
+    written = [*packed.get("files", []), out / "lease.json"]
     for src in (rd.evaluation("hbeo", "3dof"), run_dir / VAL_EVAL, rd.train_log(model), rd.training_provenance(model),
                 run_dir / LOG):
         if src.exists():

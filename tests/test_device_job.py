@@ -59,6 +59,17 @@ def _device_job_module():
     return _script_module("device_job")
 
 
+def _kill_worker(run) -> None:
+    """Kill the worker a call left running in ``run`` (its process group), if any."""
+    state = run / "job_state.json"
+    pid = json.loads(state.read_text()).get("pid") if state.exists() else None
+    if pid:
+        try:
+            os.killpg(os.getpgid(pid), signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 @pytest.mark.slow
 def test_device_job_trains_in_the_background_resumes_a_killed_worker_and_packs_under_the_limits(tmp_path):
     run, out = tmp_path / "run", tmp_path / "out"
@@ -155,12 +166,7 @@ def test_a_call_stopped_by_its_time_limit_packs_what_exists_and_leaves_the_worke
         assert lease["status"] in ("starting", "running") and not list(out.glob("*.tmp"))
     finally:
         call.kill()
-        pid = json.loads((run / "job_state.json").read_text()).get("pid") if (run / "job_state.json").exists() else None
-        if pid:
-            try:
-                os.killpg(os.getpgid(pid), signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+        _kill_worker(run)
 
 
 def test_device_prepare_copies_the_grids_and_ignores_its_folder(tmp_path, vox30_file):
@@ -384,12 +390,8 @@ def test_device_job_runs_the_first_minute_then_trains_on_the_marcher_it_chose_wi
     lease = json.loads((tmp_path / "out3" / "lease.json").read_text())       # cut short: what it had, torch
     assert lease["first_minute"]["exit"] == "timeout" and lease["first_minute"]["gridcast"] == "torch", lease
     assert cut.returncode in (0, 3)
-    pid = json.loads((tmp_path / "run2" / "job_state.json").read_text()).get("pid")
-    if cut.returncode == 3 and pid:                      # the worker it left running
-        try:
-            os.killpg(os.getpgid(pid), signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+    if cut.returncode == 3:                              # the worker it left running
+        _kill_worker(tmp_path / "run2")
 
 
 def test_device_land_lands_nothing_that_did_not_come_back_whole(tmp_path, capsys):

@@ -11,7 +11,7 @@ The GPU job times its calibration under it (``maintainer/device_job.py``; ``leas
 ``tests/test_train.py`` checks it on a GPU under the ``error`` mode), so the waits counted there are the data
 path's and those of a training's start and end (validation, saving): what a faster loop would remove next.
 
-May import: the foundation modules (here only torch).
+May import: the foundation modules (here :mod:`hbeo.config`).
 """
 from __future__ import annotations
 
@@ -24,10 +24,11 @@ from typing import Iterator
 
 import torch
 
+from hbeo.config import REPO_ROOT
+
 #: The warning of torch's sync debug mode at ``warn`` (c10/cuda/CUDAFunctions.cpp, ``warn_or_error_on_sync``).
 MESSAGE = "called a synchronizing CUDA operation"
-#: The repository, and its folders whose lines name a wait (the package, the maintainer and benchmark scripts).
-ROOT = Path(__file__).resolve().parents[2]
+#: The repository's folders whose lines name a wait (the package, the maintainer and benchmark scripts, tests).
 OWN = ("hbeo", "maintainer", "benchmarks", "scripts", "tests")
 
 
@@ -38,8 +39,9 @@ def site(frame) -> str:
     f, first = frame, None
     while f is not None:
         path = Path(f.f_code.co_filename)
-        if path.is_relative_to(ROOT) and path.relative_to(ROOT).parts[0] in OWN:
-            return f"{path.relative_to(ROOT)}:{f.f_lineno} {f.f_code.co_name}"
+        rel = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else None
+        if rel is not None and rel.parts[0] in OWN:
+            return f"{rel}:{f.f_lineno} {f.f_code.co_name}"
         if first is None and f.f_code.co_filename != warnings.__file__:
             first = f
         f = f.f_back
