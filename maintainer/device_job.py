@@ -326,14 +326,14 @@ def fit_budget(run, args, t_start: float) -> dict:
     t = time.perf_counter()                  # warm-up first (CUDA context, cuDNN's autotuning, the caster's first
     run.train(train_options(args, name="calibration-warmup.hbeo", max_steps=WARMUP_STEPS), progress=False)  # batches)
     warmup_s = time.perf_counter() - t       # in this process: the real training after it is warm too
-    import torch
     from hbeo.model.hostwaits import host_waits
+    from hbeo.model.loop import pick_device
     t = time.perf_counter()
-    with host_waits("cuda" if torch.cuda.is_available() else "cpu") as waits:   # where the host waits (a count)
+    with host_waits(pick_device().type) as waits:   # where the host waits (a count)
         cal = run.train(train_options(args, name="calibration.hbeo", max_steps=args.calibrate), progress=False)
     calibration_s = time.perf_counter() - t
     row = training_history(run.dir.training(cal.path))[-1]
-    batch = args.batch_size or run.profile.recipe.batch_size
+    batch = batch_size(args, run.profile)
     loop_s = row["step"] * batch / row["images_per_s"]
     step_s = loop_s / row["step"]
     fixed_s = max(calibration_s - loop_s, 0.0)
@@ -397,13 +397,11 @@ def worker(args) -> int:
         _write_json(state_path, state)
     t1 = time.perf_counter()
     print(f"[worker] trained: {run.dir.model}; evaluating on the {args.split} split", flush=True)
-    import torch
-    device = "cuda" if torch.cuda.is_available() else None
+    from hbeo.model.loop import pick_device
+    device = pick_device().type
     if args.split == "val":          # choosing between recipes: the validation objects, never the test split
         from hbeo.storage import atomic_text, json_text
-        model = run.model(progress=False)
-        if device:
-            model.to(device)
+        model = run.model(progress=False).to(device)
         metrics = protocol.evaluate_validation(model, run, progress=False)
         atomic_text(run.path / VAL_EVAL, json_text(metrics, indent=1))
     else:
@@ -415,6 +413,11 @@ def worker(args) -> int:
     return 0
 
 
+def batch_size(args, prof) -> int:
+    """The job's batch: ``--batch-size`` (the first minute's choice, LARGE_BATCHES) or the profile's."""
+    return args.batch_size or prof.recipe.batch_size
+
+
 def trained_facts(run, args, ckpt: Path) -> dict:
     """What the worker trained, for ``lease.json``: profile, dataset, steps (the checkpoint's), batch, learning
     rate, image passes, image size, data source, the training flags, the evaluation's split, the training's
@@ -422,7 +425,7 @@ def trained_facts(run, args, ckpt: Path) -> dict:
     from hbeo.model.loop import load_checkpoint
     prof = run.profile
     steps = int(load_checkpoint(ckpt).get("step", 0)) if ckpt.exists() else 0
-    batch = args.batch_size or prof.recipe.batch_size
+    batch = batch_size(args, prof)
     return {"profile": prof.name, "dataset": run.dataset.name, "steps": steps, "split": args.split,
             "train_options": train_flags(args), "batch_size": batch, "lr": args.lr or prof.recipe.lr,
             "images_seen": steps * batch, "image_size": list(prof.data.image_size),

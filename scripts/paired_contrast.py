@@ -6,14 +6,13 @@ error, mean IoU), on the (object, view) pairs both files answered; objects resam
 (hbeo.evaluation.paired.PairedBootstrap, seed 0). Prints one line per statistic; writes OUT.json atomically.
 """
 import argparse
-import json
 import sys
 from dataclasses import asdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from hbeo.evaluation.paired import SHOW, contrast_pair  # noqa: E402
+from hbeo.evaluation.paired import SHOW, contrast_pair, read_metrics  # noqa: E402
 from hbeo.storage import atomic_text, json_text  # noqa: E402
 
 
@@ -24,13 +23,11 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--what", default="", help="what the two files are (written into OUT)")
     args = p.parse_args(argv)
-    evals = []
-    for f in (args.a, args.b):
-        try:
-            evals.append(json.loads(Path(f).read_text()))
-        except (OSError, ValueError) as err:
-            print(f"error: {f}: not a readable metrics file ({err})", file=sys.stderr)
-            return 2
+    try:
+        evals = read_metrics([args.a, args.b])
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     try:
         est = contrast_pair(*evals)
     except (KeyError, ValueError) as err:

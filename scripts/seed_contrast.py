@@ -9,14 +9,13 @@ paired bootstrap over objects of the seed-averaged figures, seed 0). Prints one 
 OUT.json atomically.
 """
 import argparse
-import json
 import sys
 from dataclasses import asdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from hbeo.evaluation.paired import SHOW, contrast_seeds  # noqa: E402
+from hbeo.evaluation.paired import SHOW, contrast_seeds, read_metrics  # noqa: E402
 from hbeo.storage import atomic_text, json_text  # noqa: E402
 
 
@@ -27,16 +26,13 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--what", default="", help="what the two arms are (written into OUT)")
     args = p.parse_args(argv)
-    arms = {"a": [], "b": []}
-    for arm in arms:
-        for f in getattr(args, arm):
-            try:
-                arms[arm].append(json.loads(Path(f).read_text()))
-            except (OSError, ValueError) as err:
-                print(f"error: {f}: not a readable metrics file ({err})", file=sys.stderr)
-                return 2
     try:
-        est = contrast_seeds(arms["a"], arms["b"])
+        a, b = read_metrics(args.a), read_metrics(args.b)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    try:
+        est = contrast_seeds(a, b)
     except (KeyError, ValueError) as err:
         print(f"error: {' '.join(args.a)} vs {' '.join(args.b)}: {err}", file=sys.stderr)
         return 2

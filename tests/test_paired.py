@@ -137,6 +137,9 @@ def test_two_models_of_the_same_method_are_contrasted_on_their_shared_queries(tm
     (tmp_path / "bad.json").write_text("{")
     done = subprocess.run(script[:2] + [str(tmp_path / "bad.json")] + script[3:], capture_output=True, text=True)
     assert done.returncode == 2 and "bad.json: not a readable metrics file" in done.stderr
+    (tmp_path / "list.json").write_text("[1, 2]")             # JSON, but not what an evaluation writes
+    done = subprocess.run(script[:2] + [str(tmp_path / "list.json")] + script[3:], capture_output=True, text=True)
+    assert done.returncode == 2 and "list.json: not a metrics file" in done.stderr
 
 
 def test_seed_means_are_contrasted_with_intervals_over_seeds_and_objects(tmp_path):

@@ -26,7 +26,9 @@ May import: foundation and the other reproduction modules.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -56,6 +58,21 @@ STATISTICS: dict[str, tuple[Callable[[pd.DataFrame], np.ndarray], str]] = {
     "iou_mean": (lambda q: _col(q, "iou"), "mean"),
     "ms_median": (lambda q: _col(q, "ms"), "median"),
 }
+
+
+def read_metrics(paths) -> list[dict]:
+    """The metrics dicts in ``paths`` (JSON files an evaluation wrote), in order. ValueError naming the file
+    when one cannot be read or is not a metrics dict with per-query answers."""
+    out = []
+    for f in paths:
+        try:
+            m = json.loads(Path(f).read_text())
+        except (OSError, ValueError) as err:
+            raise ValueError(f"{f}: not a readable metrics file ({err})") from None
+        if not isinstance(m, dict) or "per_query" not in m:
+            raise ValueError(f"{f}: not a metrics file (no per_query answers)")
+        out.append(m)
+    return out
 
 
 def queries(metrics: dict) -> pd.DataFrame:
