@@ -146,6 +146,12 @@ def atomic_text(path, text: str) -> None:
         f.write(text)
 
 
+def atomic_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_file(path) as f:
+        f.write(data)
+
+
 def append_csv(path, rows: list[dict]) -> None:
     """Append ``rows`` (dicts, one per line) to the CSV table at ``path`` (created with a header when
     missing; columns new to it are added, left empty in older rows). The whole table is rewritten

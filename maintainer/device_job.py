@@ -465,21 +465,15 @@ def start_worker(args, state: dict) -> int:
 
 def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> list[Path]:
     """Copy what must come back into ``out``: at most 8 files, none over :data:`PART_BYTES`, each written to a
-    temporary name and renamed (:func:`hbeo.storage.atomic_file`), so a call cut by its time limit leaves whole
+    temporary name and renamed (:func:`hbeo.storage.atomic_bytes`), so a call cut by its time limit leaves whole
     files. The model goes once the worker says it is final (``model_final``: trained, rounded unless
     ``--no-round``), its SHA-256 and size into ``lease.json``; ``packed``, a dict one call keeps between its packs,
     remembers the model file already there, so packing again while the call waits gzips it only when it changed."""
     from hbeo.rundir import RunDir
-    from hbeo.storage import atomic_file
+    from hbeo.storage import atomic_bytes
     rd = RunDir(run_dir)
     out.mkdir(parents=True, exist_ok=True)
     packed = {} if packed is None else packed
-
-    def put(path: Path, data: bytes) -> Path:
-        with atomic_file(path) as f:
-            f.write(data)
-        return path
-
     model = rd.model
     if state.get("model_final") and model.exists():
         st = model.stat()
@@ -491,7 +485,9 @@ def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> l
             if len(parts) > MAX_PARTS:
                 raise SystemExit(f"{model}: {len(data)} bytes, {len(gz)} gzipped, need {len(parts)} parts of 15 MiB; "
                                  f"at most {MAX_PARTS} fit the transfer limit beside the other files")
-            files = [put(out / f"{model.name}.gz.part{i:02d}", part) for i, part in enumerate(parts)]
+            files = [out / f"{model.name}.gz.part{i:02d}" for i in range(len(parts))]
+            for path, part in zip(files, parts):
+                atomic_bytes(path, part)
             for stale in set(out.glob(f"{model.name}.gz.part*")) - set(files):    # an earlier, longer model
                 stale.unlink()
             packed.update(key=key, files=files, model_sha256=hashlib.sha256(data).hexdigest(), model_bytes=len(data))
@@ -501,7 +497,8 @@ def pack(run_dir: Path, out: Path, state: dict, packed: dict | None = None) -> l
     for src in (rd.evaluation("hbeo", "3dof"), run_dir / VAL_EVAL, rd.train_log(model), rd.training_provenance(model),
                 run_dir / LOG):
         if src.exists():
-            written.append(put(out / src.name, src.read_bytes()))
+            atomic_bytes(out / src.name, src.read_bytes())
+            written.append(out / src.name)
     return written
 
 

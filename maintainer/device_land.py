@@ -250,20 +250,18 @@ def land(src: Path, run_dir: Path | None = None, per_class: int | None = 20, res
     ``evaluate`` (``--evaluate-here``): a job whose model came back final but not its evaluation is evaluated on
     this CPU instead (:func:`evaluate_here`; then there is nothing to score again)."""
     from hbeo.rundir import RunDir
-    from hbeo.storage import atomic_file, atomic_text, json_text
+    from hbeo.storage import atomic_bytes, atomic_text, json_text
     got = check(src, evaluate)
     lease, ev = got["lease"], got["evaluation"]
     rd = RunDir(run_dir or RunDir.for_run(lease["profile"], lease["dataset"]).path).create()
-    with atomic_file(rd.model) as f:
-        f.write(got["model_bytes"])
+    atomic_bytes(rd.model, got["model_bytes"])
     brought = [("job.log", rd.path / "job.log"), ("train_log.csv", rd.train_log(rd.model)),
                ("provenance.json", rd.training_provenance(rd.model))]
     if ev is not None:               # an unfinished job's evaluation file, if any, is not the checked one
         brought.append(("eval_hbeo_3dof.json", rd.evaluation("hbeo", "3dof")))
     for name, dest in brought:
         if (Path(src) / name).exists():
-            with atomic_file(dest) as f:
-                f.write((Path(src) / name).read_bytes())
+            atomic_bytes(dest, (Path(src) / name).read_bytes())
     if ev is None:
         rd.evaluation("hbeo", "3dof").unlink(missing_ok=True)
         lease = {**lease, "evaluated_here": f"cpu: {os.cpu_count()} cores (device_land.py --evaluate-here; the "

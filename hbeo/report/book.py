@@ -33,7 +33,7 @@ from pathlib import Path
 
 from hbeo.errors import DataError
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_file, atomic_text
+from hbeo.storage import atomic_bytes, atomic_text
 
 #: The book's folder inside a run (``RUN/book/``) and its figures' subfolder.
 BOOK_DIR, FIGURES_DIR = "book", "figures"
@@ -269,8 +269,7 @@ def build_book(run, out_dir=None) -> Path:
     pngs = sorted(run.path.glob("*.png"))
     figures = [p for p in pngs if _is_figure(p)]
     for p in figures:
-        with atomic_file(out / FIGURES_DIR / p.name) as f:
-            f.write(p.read_bytes())
+        atomic_bytes(out / FIGURES_DIR / p.name, p.read_bytes())
     tables = sorted(run.path.glob("*.md"))
     index = _index_html(title, run, manifest, pages, tables, [p.name for p in figures],
                         [p.name for p in pngs if p not in figures])
