@@ -425,11 +425,11 @@ def trained_facts(run, args, ckpt: Path) -> dict:
     from hbeo.model.loop import load_checkpoint
     prof = run.profile
     steps = int(load_checkpoint(ckpt).get("step", 0)) if ckpt.exists() else 0
-    batch = batch_size(args, prof)
+    batch, flags = batch_size(args, prof), train_flags(args)
     return {"profile": prof.name, "dataset": run.dataset.name, "steps": steps, "split": args.split,
-            "train_options": train_flags(args), "batch_size": batch, "lr": args.lr or prof.recipe.lr,
+            "train_options": flags, "batch_size": batch, "lr": args.lr or prof.recipe.lr,
             "images_seen": steps * batch, "image_size": list(prof.data.image_size),
-            "train_data": train_flags(args).get("data", prof.data.train_data),
+            "train_data": flags.get("data", prof.data.train_data),
             "provenance": _read_json(run.dir.training_provenance(run.dir.model)),
             "command": " ".join(["python", str(Path(sys.argv[0]).resolve().relative_to(ROOT)), *sys.argv[1:]])}
 
