@@ -17,9 +17,14 @@ and view index, so a subset's queries are the very queries of the whole split: 6
 3,000 queries, about a fifth of the time) and the committed file's summary (accuracy, class mean,
 query count) is recomputed from all its queries. ``HBEO_REFERENCE_FULL=1`` scores the whole split, as the
 run did (about three minutes on 2 cores).
+
+The committed files are what is tested: `make reproduce` in this clone rewrites ``results/quick-procedural/``
+with the user's own run (its own model and evaluation, not from a tagged clone), so a file that differs from
+git's HEAD is read from HEAD instead.
 """
 import json
 import os
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -31,16 +36,36 @@ from hbeo.storage import sha256_file
 
 pytestmark = pytest.mark.slow
 
-RESULTS = Path(__file__).resolve().parent.parent / "results"
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "results"
 #: run folder -> (profile, dataset, number of test objects its evaluation covers)
 RUNS = {"cpu-modelnet10-vox30": ("cpu", "modelnet10-vox30", 907), "quick-procedural": ("quick", "procedural", None)}
 #: test objects of each class scored again (None: the whole split)
 PER_CLASS = None if os.environ.get("HBEO_REFERENCE_FULL") == "1" else 20
 
 
+#: the files of a run folder this test reads
+READS = ("model.hbeo", "manifest.json", "eval_hbeo_3dof.json")
+
+
+def committed_run(name: str, tmp_path_factory, root: Path = ROOT) -> RunDir:
+    """Run folder ``results/name`` of ``root`` as committed: itself when :data:`READS` are as in git's HEAD (or
+    ``root`` is no git checkout), else a temporary folder holding HEAD's versions of them."""
+    rel = [f"results/{name}/{f}" for f in READS]
+    status = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", *rel], capture_output=True,
+                            text=True)
+    if status.returncode != 0 or not status.stdout.strip():
+        return RunDir(root / "results" / name)
+    out = tmp_path_factory.mktemp(name)
+    for f, path in zip(READS, rel):
+        shown = subprocess.run(["git", "-C", str(root), "show", f"HEAD:{path}"], capture_output=True, check=True)
+        (out / f).write_bytes(shown.stdout)
+    return RunDir(out)
+
+
 @pytest.fixture(params=sorted(RUNS), scope="module")
-def reference(request):
-    run = RunDir(RESULTS / request.param)
+def reference(request, tmp_path_factory):
+    run = committed_run(request.param, tmp_path_factory)
     profile, dataset, n_objects = RUNS[request.param]
     committed = json.loads(run.evaluation("hbeo", "3dof").read_text())
     return run, profile, dataset, n_objects, committed
@@ -136,3 +161,19 @@ def test_the_paper_scale_model_reproduces_its_scoring_on_a_cpu(monkeypatch, requ
     got = evaluate_model(HBEO.load(run.model), ds, split="test", views=req["views"], seed=req["seed"],
                          per_class=min(5, req["per_class"] or 5), progress=False, batched=True)
     _assert_same_answers(got, cpu)
+
+
+def test_a_regenerated_run_folder_is_read_from_git(tmp_path, tmp_path_factory):
+    """After `make reproduce` rewrote a committed file of a run folder, the test reads HEAD's version."""
+    repo = tmp_path / "repo"
+    folder = repo / "results" / "run"
+    folder.mkdir(parents=True)
+    for f in READS:
+        (folder / f).write_text(f"committed {f}")
+    git = ["git", "-C", str(repo), "-c", "user.name=t", "-c", "user.email=t@t"]
+    for args in (["init", "-q"], ["add", "."], ["commit", "-q", "-m", "run"]):
+        subprocess.run(git + args, check=True, capture_output=True)
+    assert committed_run("run", tmp_path_factory, repo).path == folder          # as committed: itself
+    (folder / "manifest.json").write_text("a local run")
+    run = committed_run("run", tmp_path_factory, repo)
+    assert run.path != folder and [(run.path / f).read_text() for f in READS] == [f"committed {f}" for f in READS]

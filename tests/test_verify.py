@@ -68,6 +68,45 @@ def test_translation_alignment_moves_a_shifted_shape_back_onto_the_depth():
     assert np.linalg.norm(align_translation(np.zeros_like(depth), R, t_true, pts, K) - t_true) == 0
 
 
+def test_verify_works_at_the_model_cameras_pixel_density():
+    """A 640x480 frame is reduced to every 8th pixel (the 80x60 model camera's density): the kept pixels are the
+    originals, with their own rays; the true shape at its true pose agrees with a hole-free frame of it there,
+    where at full resolution its point splat leaves holes (and the back showing through them) that disagree."""
+    from hbeo.conventions import Intrinsics, backproject
+    from hbeo.model.verify import depth_agreement, shape_depth, surface_points, working_view
+    model_K, big = Intrinsics.kinect(80, 60), Intrinsics(525.0, 530.0, 321.3, 238.7, 640, 480)
+    depth = np.zeros((480, 640))
+    depth[100:400, 150:500] = 1.7 + 0.001 * np.arange(350)         # any values: which pixels are kept
+    d, K = working_view(depth, big, model_K)
+    assert d.shape == (60, 80) and (K.width, K.height) == (80, 60)
+    np.testing.assert_array_equal(d, depth[4::8, 4::8])
+    keep = np.zeros_like(depth)
+    keep[4::8, 4::8] = depth[4::8, 4::8]
+    np.testing.assert_allclose(backproject(d, K)[0], backproject(keep, big)[0], rtol=0, atol=1e-12)  # same rays
+    assert working_view(depth, model_K, model_K)[1] is model_K                 # the model's camera: unchanged
+    assert working_view(depth[::8, ::8], Intrinsics.kinect(80, 60), model_K)[1] == model_K
+    shape = np.zeros((30, 30, 30), bool)
+    shape[6:24, 9:21, 3:27] = True
+    pts = surface_points(shape, 1.0)
+    R = z_angle_to_matrix(0.6) @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
+    t, tol = np.array([0.2, -0.1, 1.7]), 2.0 / 30
+    seen = shape_depth(_dense_points(shape), R, t, big)                      # a sensor's frame: no holes
+    seen_small, Ks = working_view(seen, big, model_K)
+    assert depth_agreement(seen_small, shape_depth(pts, R, t, Ks), tol) > 0.8
+    assert depth_agreement(seen, shape_depth(pts, R, t, big), tol) < 0.5     # what verify saw before
+
+
+def _dense_points(shape, n=8):
+    """A shape's surface voxels as n^3 points each (object frame, metres, object_size 1): dense enough that a
+    640x480 view at 1.7 m has no holes, as a sensor's frame of the surface."""
+    from scipy import ndimage
+    from hbeo.conventions import OBJECT_VOXELS
+    surf = np.argwhere(shape & ~ndimage.binary_erosion(shape)).astype(np.float64)
+    g = (np.arange(n) + 0.5) / n - 0.5
+    sub = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return ((surf[:, None] + 0.5 + sub[None]).reshape(-1, 3) - shape.shape[0] / 2) / OBJECT_VOXELS
+
+
 @pytest.fixture(scope="module")
 def model_and_view(ci_model, ci_grids):
     from dataclasses import replace

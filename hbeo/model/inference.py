@@ -82,6 +82,10 @@ class Prediction:
     #: camera, averaged over rolls); None for regression heads
     pose_probs: np.ndarray | None = None
     view_rotation: np.ndarray | None = None         #: (B, 3, 3) Q: virtual camera -> user camera
+    #: verified answers (:meth:`hbeo.model.verify.Verifier.apply`): (B,) dicts of the check's depth ``agreement``,
+    #: ``kept_network`` (below verify's ``min_agreement``: the network's answer stands), ``n_hypotheses`` and the
+    #: working image's ``stride``; None when not verified
+    verified: list | None = None
 
     def to_dict(self, i: int = 0) -> dict:
         """JSON-ready summary of image ``i``."""
@@ -92,6 +96,7 @@ class Prediction:
                 "coeffs": self.coeffs[i].round(6).tolist(), "occupied_voxels": int(self.grids[i].sum()),
                 "low_confidence": bool(self.low_confidence[i]) if self.low_confidence is not None else False,
                 "warnings": list(self.warnings[i]) if self.warnings else [],
+                **({"verified": dict(self.verified[i])} if self.verified is not None else {}),
                 "timing_ms": {k: round(v, 3) for k, v in self.timing_ms.items()}}
 
 

@@ -167,6 +167,22 @@ def shape_depth(points: np.ndarray, R: np.ndarray, t: np.ndarray, intrinsics: In
     return np.where(np.isfinite(near), near, 0.0).reshape(K.height, K.width)
 
 
+def working_view(depth: np.ndarray, intrinsics: Intrinsics, model_intrinsics: Intrinsics) -> tuple[np.ndarray, Intrinsics]:
+    """The image verify works on: ``depth`` (H, W) seen with ``intrinsics``, reduced to the model camera's pixel
+    density, at which :func:`surface_points` cover a shape without holes and the settings were chosen. Every
+    s-th pixel in each direction from pixel s // 2, with s the whole number of image pixels per model pixel
+    (``min(fx / fx_model, fy / fy_model)`` rounded down, at least 1): the kept pixels are exactly the originals,
+    the intrinsics theirs (f / s; c' = (c - s // 2) / s). s = 1 (the model's own camera, a coarser one)
+    returns the inputs."""
+    K, Km = intrinsics, model_intrinsics
+    s = max(1, int(min(K.fx / Km.fx, K.fy / Km.fy)))
+    if s == 1:
+        return depth, K
+    o = s // 2
+    d = np.ascontiguousarray(np.asarray(depth)[o::s, o::s])
+    return d, Intrinsics(K.fx / s, K.fy / s, (K.cx - o) / s, (K.cy - o) / s, d.shape[1], d.shape[0])
+
+
 def depth_agreement(observed: np.ndarray, rendered: np.ndarray, tol: float) -> float:
     """How well a rendered depth image (H, W) explains an observed one: the fraction of the pixels
     either covers where both do and their depths differ by less than ``tol`` metres (1: the same
@@ -255,9 +271,11 @@ class Verifier:
         "grid" (30^3 bool, under the model's completion rule), "grid_paper" (the same coefficients at 0.5, the
         paper's rule), "score", "n_hypotheses", "agreement" (:func:`depth_agreement` of the best hypothesis'
         completion at 0.5 rendered at its pose), "kept_network" (agreement below
-        ``min_agreement``: the answer is HBEO's own), "ms"}."""
+        ``min_agreement``: the answer is HBEO's own), "stride" (:func:`working_view`'s s), "ms"}."""
         t0 = time.perf_counter()
         cfg, model = self.cfg, self.model
+        full = intrinsics
+        depth, intrinsics = working_view(depth, intrinsics, model.intrinsics)
         Rs, log_pr = self.hypotheses_rotations(pred, i)
         probs = np.asarray(pred.probabilities[i], np.float64)
         top = np.argsort(-probs)[:cfg.classes]
@@ -294,7 +312,8 @@ class Verifier:
                                 cfg.agreement_tol * size / OBJECT_VOXELS) if grid.any() else 0.0
         out = {"probabilities": out_probs, "label": int(top[ci]), "rotation": Rs[r], "translation": ts[r],
                "coeffs": o, "grid": grid, "score": float(scores[r, ci]), "n_hypotheses": int(scores.size),
-               "agreement": agree, "kept_network": agree < cfg.min_agreement}
+               "agreement": agree, "kept_network": agree < cfg.min_agreement,
+               "stride": int(round(full.fx / intrinsics.fx))}
         if out["kept_network"]:                          # unsure: HBEO's own answer, as if not verified
             out.update(probabilities=np.asarray(pred.probabilities[i], np.float64), label=int(pred.labels[i]),
                        rotation=pred.rotation[i], translation=pred.translation[i],
@@ -339,5 +358,7 @@ class Verifier:
                        class_names=[self.model.classes[j] for j in labels], rotation=R,
                        axis_angle=matrix_to_axis_angle(R), coeffs=np.stack([x["coeffs"] for x in res]),
                        grids=np.stack([x["grid"] for x in res]),
+                       verified=[{"agreement": round(float(x["agreement"]), 6), "kept_network": bool(x["kept_network"]),
+                                  "n_hypotheses": x["n_hypotheses"], "stride": x["stride"]} for x in res],
                        timing_ms={**pred.timing_ms, "verify": sum(x["ms"] for x in res),
                                   "total": pred.timing_ms.get("total", 0.0) + sum(x["ms"] for x in res)})
