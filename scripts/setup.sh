@@ -6,9 +6,10 @@ PYTHON=${PYTHON:-python3}
 VENV=${VENV:-.venv}
 cd "$(dirname "$0")/.."
 
-# Debian packages the renderer needs (OSMesa for CPU machines, EGL for GPUs), and the headless browser that
-# tests the run's book (tests/test_book.py drives it through playwright, which must not download its own).
-DEB_PACKAGES="libosmesa6 libegl1 libgl1 libgles2 libglu1-mesa chromium"
+# Debian packages: python3-venv (a stock Debian python3 makes no virtual environment without it), the
+# renderer's libraries (OSMesa for CPU machines, EGL for GPUs), and the headless browser that tests the run's
+# book (tests/test_book.py drives it through playwright, which must not download its own).
+DEB_PACKAGES="python3-venv libosmesa6 libegl1 libgl1 libgles2 libglu1-mesa chromium"
 missing=""
 for p in $DEB_PACKAGES; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
@@ -25,7 +26,7 @@ if [ -n "$missing" ]; then
 fi
 
 if [ ! -x "$VENV/bin/python" ]; then
-  "$PYTHON" -c 'import sys; assert sys.version_info[:2] >= (3, 10), "Python >= 3.10 needed"'
+  "$PYTHON" -c 'import sys; assert sys.version_info[:2] >= (3, 11), "Python >= 3.11 needed (the pinned pandas)"'
   "$PYTHON" -m venv "$VENV"
 fi
 # pip, quiet on success; on failure its whole output (minus mirror "is ignored" noise) and exit 1.
