@@ -9,7 +9,7 @@ import sys
 import traceback
 
 from hbeo import config
-from hbeo.cli_args import (COUNT, FRACTION, NONNEG, OPEN_FRACTION, POSITIVE, image_size as _image_size,
+from hbeo.cli_args import (COUNT, FRACTION, NONNEG, OPEN_FRACTION, POSITIVE, image_size as _image_size, number,
                            join_list_values as _join_list_values, local_workers as _local_workers)
 from hbeo.errors import HBEOError, os_error_line
 from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
@@ -134,7 +134,7 @@ def _add_mirror(p) -> None:
 
 
 def _add_prior(p) -> None:
-    p.add_argument("--prior-tau", type=float, default=0.0, metavar="TAU",
+    p.add_argument("--prior-tau", type=number(float, 0, 1), default=0.0, metavar="TAU",
                    help="prior correction: class logits minus TAU * log(training class prior), TAU in [0, 1] "
                         "(0: the paper's, default; 1: divide by the prior; hbeo.model.inference.HBEO.set_prior_tau)")
 
@@ -428,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--per-class", type=COUNT, help="at most this many objects per class")
     p.add_argument("--strict", action="store_true",
                    help="exit 2 when any object could not be evaluated (default: report it, score the rest)")
-    p.add_argument("--out", required=True, help="metrics JSON (keys: see hbeo/evaluate.py)")
+    p.add_argument("--out", required=True, help="metrics JSON (keys: see hbeo/evaluation/evaluate.py)")
     p.add_argument("--quiet", action="store_true")
     p = _command(sub, cmd_convert_model, "convert-model", help="rewrite an old-format (torch pickle) model file in the current "
                                              "format, reading it without running code it may carry")

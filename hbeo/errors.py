@@ -24,6 +24,14 @@ class DataError(HBEOError, ValueError):
         return (type(self), (self.path, self.problem))
 
 
+def require_file(path, what: str) -> None:
+    """DataError naming ``path`` when it is not a file: missing (``no such WHAT file``) or a folder."""
+    if Path(path).is_dir():
+        raise DataError(path, f"is a folder, not a {what} file")
+    if not Path(path).is_file():
+        raise DataError(path, f"no such {what} file")
+
+
 class MissingDataError(HBEOError, FileNotFoundError):
     """A dataset or file that is not where the settings say; the message says how to get it."""
 

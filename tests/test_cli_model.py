@@ -39,7 +39,8 @@ def test_predict_on_a_16bit_png(trained, tmp_path):
     assert r["class"] in ("bathtub", "bed", "chair", "desk", "dresser", "monitor", "night_stand", "sofa",
                           "table", "toilet")
     assert len(r["axis_angle"]) == 3 and np.isclose(sum(r["probabilities"]), 1, atol=1e-4)
-    assert r["precision"] == "float32" and r["rolls"] == 1
+    assert r["precision"] == "float32" and r["rolls"] == 1 and "verified" not in r
+    assert len(r["classes"]) == len(r["probabilities"]) and r["classes"][r["label"]] == r["class"]
     fast = run("predict", "--model", str(trained / "model.hbeo"), "--depth", str(tmp_path / "d.png"),
                "--intrinsics", "65.6,65.6,39.5,29.5", "--precision", "bfloat16", "--out", str(tmp_path / "b.json"))
     assert fast.returncode == 0, fast.stderr
@@ -61,19 +62,49 @@ def test_predict_on_a_16bit_png(trained, tmp_path):
     ("bad model", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--model", "junk.hbeo"],
      "not a readable hbeo model"),
     ("rolls", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--rolls", "4"], "needs a rotation-bins model"),
+    ("depth folder", ["--depth", "dir.png", "--intrinsics", "65,65,39,29"], "is a folder, not a depth file"),
+    ("model folder", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--model", "dir.hbeo"],
+     "is a folder, not a model file"),
+    ("NaN mask", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--mask", "nan.npy"], "mask has NaN"),
+    ("0-d mask", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--mask", "scalar.npy"],
+     "mask must be a 2-D image"),
+    ("prior tau", ["--depth", "d.png", "--intrinsics", "65,65,39,29", "--prior-tau", "2"],
+     "--prior-tau: expected a number >= 0 and <= 1"),
 ])
 def test_predict_bad_input_exits_2_with_one_line_and_writes_nothing(trained, tmp_path, what, args, msg):
     depth_png(tmp_path / "d.png")
     Image.fromarray(np.zeros((60, 80), np.uint16)).save(tmp_path / "zero.png")
     Image.fromarray(np.ones((4, 4), np.uint8)).save(tmp_path / "small.png")
     (tmp_path / "junk.hbeo").write_bytes(b"junk")
-    args = [a if not a.endswith((".png", ".hbeo")) else str(tmp_path / a) for a in args]
+    (tmp_path / "dir.png").mkdir()
+    (tmp_path / "dir.hbeo").mkdir()
+    np.save(tmp_path / "nan.npy", np.full((60, 80), np.nan))
+    np.save(tmp_path / "scalar.npy", np.array(1.0))
+    args = [a if not a.endswith((".png", ".hbeo", ".npy")) else str(tmp_path / a) for a in args]
     if "--model" not in args:
         args += ["--model", str(trained / "model.hbeo")]
     out = run("predict", *args, "--out", str(tmp_path / "r.json"), "--mesh", str(tmp_path / "m.ply"))
     assert out.returncode == 2, (what, out.stderr)
     assert msg in out.stderr and out.stderr.strip().count("\n") == 0
     assert not (tmp_path / "r.json").exists() and not (tmp_path / "m.ply").exists()
+
+
+def test_predict_file_writes_a_mesh_alone_and_the_api_names_bad_arguments(trained, tmp_path):
+    """``predict_file`` with a mesh path and no JSON path writes the mesh; ``HBEO.predict`` refuses intrinsics
+    that are not an Intrinsics and depth that is not an image or a batch, in words."""
+    import trimesh
+    from hbeo.conventions import Intrinsics
+    from hbeo.model.answer import predict_file
+    from hbeo.model.inference import HBEO
+    depth_png(tmp_path / "d.png")
+    a = predict_file(trained / "model.hbeo", tmp_path / "d.png", "65.6,65.6,39.5,29.5", mesh_path=tmp_path / "m.ply")
+    assert a.extra["mesh"] == str(tmp_path / "m.ply") and len(trimesh.load(tmp_path / "m.ply").vertices) > 0
+    model = HBEO.load(trained / "model.hbeo")
+    with pytest.raises(TypeError, match="intrinsics must be an hbeo.conventions.Intrinsics.*got tuple"):
+        model.predict(np.full((60, 80), 1.7), (65.6, 65.6, 39.5, 29.5))
+    for bad in (np.full(80, 1.7), np.zeros((0, 60, 80))):
+        with pytest.raises(ValueError, match=r"depth must be one image \(H, W\) or a batch"):
+            model.predict(bad, Intrinsics(65.6, 65.6, 39.5, 29.5, 80, 60))
 
 
 def test_evaluate_writes_the_documented_keys(trained, tmp_path):

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from hbeo.errors import DataError
+from hbeo.errors import DataError, require_file
 
 MESH_SUFFIXES = (".off", ".obj", ".ply", ".stl")
 
@@ -205,8 +205,7 @@ def read_mesh(path) -> trimesh.Trimesh:
     Raises :class:`DataError` naming the file when it is missing, unreadable or empty.
     """
     path = Path(path)
-    if not path.is_file():
-        raise DataError(path, "no such mesh file")
+    require_file(path, "mesh")
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
         raise DataError(path, f"unsupported mesh format {suffix!r}; expected one of {', '.join(MESH_SUFFIXES)}")

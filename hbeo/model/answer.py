@@ -120,7 +120,7 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     (:mod:`hbeo.model.depthfile`), and answer with the model file ``model_path`` (network arithmetic
     ``precision``, prior correction ``prior_tau`` with the file's training class counts:
     :meth:`hbeo.model.inference.HBEO.set_prior_tau`; a file without them is refused) through :class:`Predictor`. With ``out``, the answer's JSON (:meth:`Answer.to_json`) is
-    written there and, with ``mesh_path``, the completed shape placed in the camera frame
+    written there; with ``mesh_path``, the completed shape placed in the camera frame
     (:meth:`hbeo.model.inference.HBEO.to_mesh`); both files are complete before either is renamed into
     place, and a bad output path (or one naming an input) fails before any work. DataError names the file
     at fault. ``members``: model files averaged with ``model_path``'s (:meth:`hbeo.model.inference.HBEO.add_members`;
@@ -131,7 +131,7 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_files, check_outputs, json_text
-    if out is not None:
+    if out is not None or mesh_path is not None:
         check_outputs({"--out": out, "--mesh": mesh_path}, {"--depth": depth_path, "--mask": mask_path,
                                                             "--model": model_path,
                                                             **{f"--ensemble {f}": f for f in members}})
@@ -149,6 +149,7 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
                     verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
+    answer.extra["classes"] = list(model.classes)      # the order of "probabilities"
     if model.mirror:
         answer.extra["mirror"] = True
     if model.completion.name != "paper":
@@ -161,9 +162,9 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
         answer.extra["mesh"] = str(mesh_path)
         data = mesh.export(file_type=Path(mesh_path).suffix.lstrip(".").lower())
         data = data.encode() if isinstance(data, str) else data
-    if out is not None:                               # both complete before either is renamed
-        with atomic_files([(out, "w")] + ([(mesh_path, "wb")] if data is not None else [])) as files:
-            files[0].write(json_text(answer.to_json(), indent=2))
-            if data is not None:
-                files[1].write(data)
+    writes = [(out, "w", json_text(answer.to_json(), indent=2))] if out is not None else []
+    writes += [(mesh_path, "wb", data)] if data is not None else []
+    with atomic_files([(path, mode) for path, mode, _ in writes]) as files:   # all complete before any is renamed
+        for f, (_, _, content) in zip(files, writes):
+            f.write(content)
     return answer

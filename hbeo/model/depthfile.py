@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hbeo.errors import DataError
+from hbeo.errors import DataError, require_file
 
 SUFFIXES = (".png", ".npy", ".tif", ".tiff")
 #: metres: a depth camera's object distances; a median valid depth outside is a unit mistake
@@ -47,8 +47,7 @@ def _read_raw(path: Path) -> np.ndarray:
 def read_depth(path, depth_scale: float | None = None) -> np.ndarray:
     """Depth image (H, W) float32 in metres, 0 where there is no measurement."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(path, "no such depth file")
+    require_file(path, "depth")
     if path.suffix.lower() not in SUFFIXES:
         raise DataError(path, f"unsupported depth format {path.suffix!r}; expected {', '.join(SUFFIXES)}")
     raw = _read_raw(path)
@@ -84,9 +83,14 @@ def read_depth(path, depth_scale: float | None = None) -> np.ndarray:
 def read_mask(path, shape: tuple[int, int]) -> np.ndarray:
     """Bool mask (H, W) from a PNG/.npy/.tif (non-zero = object); must match ``shape``."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(path, "no such mask file")
+    require_file(path, "mask")
     m = _read_raw(path)
+    if m.ndim not in (2, 3) or m.size == 0:
+        raise DataError(path, f"mask must be a 2-D image (or RGB(A)), got shape {m.shape}")
+    if m.dtype.kind not in "buif":
+        raise DataError(path, f"mask has dtype {m.dtype}; expected booleans or numbers (non-zero = object)")
+    if m.dtype.kind == "f" and not np.isfinite(m).all():
+        raise DataError(path, "mask has NaN or infinite values; expected 0 (background) and non-zero (object)")
     if m.ndim == 3:                      # RGB(A) masks: any non-zero channel
         m = m[..., :3].any(axis=-1)
     if m.shape != tuple(shape):

@@ -200,7 +200,7 @@ class HBEO:
                 raise ValueError(f"prior correction: this model was trained with class balance "
                                  f"{self.settings.class_balance!r}, so it saw its classes about equally often and "
                                  f"its file's class counts are not its prior (correcting by them would count the "
-                                 f"imbalance twice); pass class_counts to correct by a prior of your own")
+                                 f"imbalance twice); in Python, pass class_counts to correct by a prior of your own")
         log_prior = None
         if counts is not None:
             counts = np.asarray(counts, np.float64)
@@ -386,7 +386,12 @@ class HBEO:
         rolls = check_rolls(rolls, "rolls")      # a positive integer, at most MAX_ROLLS
         if rolls > 1 and self.net.cfg.rotation != "bins":
             raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError(f"intrinsics must be an hbeo.conventions.Intrinsics(fx, fy, cx, cy, width, height), got "
+                            f"{type(intrinsics).__name__}")
         depth = np.asarray(depth)
+        if depth.ndim not in (2, 3) or depth.size == 0:
+            raise ValueError(f"depth must be one image (H, W) or a batch (B, H, W) with pixels, got shape {depth.shape}")
         batch = depth[None] if depth.ndim == 2 else depth
         masks = [None] * len(batch) if mask is None else (np.asarray(mask)[None] if np.ndim(mask) == 2 else mask)
         if len(masks) != len(batch):

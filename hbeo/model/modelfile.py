@@ -56,7 +56,7 @@ import safetensors.torch
 import torch
 
 from hbeo import __version__
-from hbeo.errors import DataError
+from hbeo.errors import DataError, require_file
 from hbeo.render.poses import SAMPLERS
 from hbeo.storage import atomic_file
 from hbeo.subspace.basis import FORMAT_VERSION as SUBSPACE_FORMAT_VERSION, ObjectSubspace
@@ -296,8 +296,7 @@ def _is_legacy(head: bytes, names) -> bool:
 
 def _read_members(path: Path) -> dict[str, bytes]:
     """The zip's members (CRC-checked); DataError on a missing, truncated or foreign file."""
-    if not path.is_file():
-        raise DataError(path, "no such model file")
+    require_file(path, "model")
     try:
         with open(path, "rb") as f:
             head = f.read(4)
@@ -457,8 +456,7 @@ def read_legacy(path) -> LegacyModel:
     tensors, numbers, strings, bytes and plain containers only; no function is called), so a file
     carrying code is refused, never run. DataError naming the file otherwise."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(path, "no such model file")
+    require_file(path, "model")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:
