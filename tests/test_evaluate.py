@@ -92,3 +92,30 @@ def test_batched_evaluation_gives_the_per_query_answers(ci_model):
     v = evaluate_model(model, ds, split="test", views=1, seed=3, per_class=1, progress=False, batched=True,
                        verify=VerifyConfig())
     assert "batched" not in v
+
+
+def test_an_object_with_no_visible_view_is_a_failure_not_a_silent_drop(ci_model, monkeypatch):
+    """A query view with no pixel is not scored; an object none of whose views shows a pixel (a grid of a few
+    voxels, as ModelNet10's bathtub_0070 at 80x60) is listed in ``failures`` and not counted in ``n_objects``."""
+    from hbeo import config
+    from hbeo.data import datasets
+    from hbeo.evaluation import evaluate as ev
+    from hbeo.model.inference import HBEO
+    ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
+    original = ev.rendered_chunks
+
+    def blank_first(*args, **kw):
+        for batch in original(*args, **kw):
+            for i, rec, v, truth in batch:
+                if i == 0:
+                    v["depth"][:] = 0
+            yield batch
+
+    monkeypatch.setattr(ev, "rendered_chunks", blank_first)
+    m = ev.evaluate_model(HBEO.load(ci_model), ds, split="test", views=2, seed=0, per_class=1, progress=False)
+    first = ds.records(split="test", per_class=1)[0]
+    assert [f["object"] for f in m["failures"]] == [ev._name(first)]
+    assert "no pixel visible in any of its 2 query views at 80x60" in m["failures"][0]["reason"]
+    n = len(ds.records(split="test", per_class=1))
+    assert m["n_objects"] == n - 1 and m["n_queries"] == 2 * (n - 1)
+    assert first.id not in m["per_query"]["object"]
