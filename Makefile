@@ -1,13 +1,14 @@
 # hbeo: two commands do everything on a fresh Debian machine with Python 3.11.
-#   make reproduce   set up, then run every notebook (procedural data, quick profile: ~35 min on 2 cores) into
+#   make reproduce   set up, then run every notebook (procedural data, quick profile: ~37 min on 2 cores) into
 #                    results/quick-procedural/, training
 #                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints;
 #                    SEED=N: train every model with training seed N, into results/$(PROFILE)-$(DATASET)-seedN)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile), then the fast
 #                    tests again on numpy 2 (test-numpy2)
-#   make test-fast   set up, then pytest over tests/ without the tests marked slow (about a minute)
+#   make test-fast   set up, then pytest over tests/ without the tests marked slow (~3.5 min on 2 cores, as its
+#                    numpy-2 run in benchmarks/README.md, "The test command's wall time")
 #   make test-numpy2 the fast tests on numpy 2 (the GPU machines' stack): a second venv, $(NP2VENV), with
-#                    pip install .[render,dask,notebooks,book,test] under the lock's versions but numpy>=2, no pyrender
+#                    pip install .[render,dask,notebooks,book,test] under requirements.txt's pins but numpy>=2, no pyrender
 #   make book        render a run folder's executed notebooks, tables and figures to a static HTML site that
 #                    opens offline: results/$(PROFILE)-$(DATASET)/book/index.html (RUN=DIR: another run folder)
 #   make docs        set up, then build the documentation site (Sphinx + MyST-NB, offline, no network when opened):

@@ -8,7 +8,9 @@ Profiles
     ``cpu``  a scaled-down reproduction that finishes on a 2-core machine (the ModelNet10 reference run).
     ``full`` the paper's scale (GPU): all objects, 320x240 images, 1,800 streamed views per object, 2 epochs
              (12.9 M image passes, the paper's ~7 M images x ~2 epochs).
-    ``gpu-lease`` the paper's network and images within one lent GPU's 30 minutes (359 k image passes).
+    ``gpu-lease`` the paper's network and images, one epoch of 100 streamed views per training object (359 k
+             image passes), sized before any GPU measurement for 30 minutes of one GPU; it has no time budget
+             of its own (for a shorter rental, the device job's ``--budget`` trains the steps that fit).
 
 Paths (environment variables override the defaults)
     ``HBEO_VOX30``      the ModelNet10 30^3 grids (``modelnet10_vox30.npz``); default: the
