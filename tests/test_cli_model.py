@@ -340,3 +340,26 @@ def test_evaluate_mirror_averages_only_the_class_and_is_refused_for_a_baseline(t
               "--mirror", "--out", str(tmp_path / "beo.json"), "--quiet")
     assert out.returncode == 2 and "--mirror" in out.stderr and out.stderr.strip().count("\n") == 0
     assert not (tmp_path / "beo.json").exists()
+
+
+def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_without_recentering(trained):
+    """The training renderings put the object's centre within ``shift`` (a fraction of the depth) of the axis;
+    a centre beyond twice that is warned about, one on the axis is not."""
+    from hbeo.conventions import Intrinsics
+    from hbeo.model.inference import HBEO
+    model = HBEO.load(trained / "model.hbeo")
+    shift = model.settings.render["shift"]
+    assert not model.settings.recenter and shift > 0
+    K = Intrinsics.kinect(320, 240)
+
+    def blob(u0):                                 # a 0.3 m square at 1.7 m, its centre at column u0
+        d = np.zeros((240, 320), np.float32)
+        half = int(0.15 * K.fx / 1.7)
+        d[120 - half:120 + half, u0 - half:u0 + half] = 1.7
+        return d
+
+    centred = model.predict(blob(160), K)
+    assert not any("off the optical axis" in w for w in centred.warnings[0])
+    u_far = int(K.cx + K.fx * 3 * shift) + 1       # three times the training shift
+    far = model.predict(blob(u_far), K)
+    assert far.low_confidence[0] and any("off the optical axis" in w for w in far.warnings[0])

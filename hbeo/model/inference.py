@@ -51,6 +51,10 @@ MIN_INPUT_FRACTION = 0.005
 #: an object centre farther than this factor outside the training distances: low confidence
 #: (models trained without distance normalization only)
 DISTANCE_FACTOR = 1.5
+#: a model trained without recentering warns when the object's centre, seen from the camera, is off the optical
+#: axis by more than this many times its renderings' ``shift`` (the largest offset it was trained on, as a
+#: fraction of the depth), in x or y
+OFF_AXIS_FACTOR = 2.0
 
 
 def _finite(x) -> bool:
@@ -482,6 +486,14 @@ class HBEO:
         K = self.intrinsics
         if v.filled < max(16, MIN_INPUT_FRACTION * K.width * K.height):
             out.append(f"the object fills only {v.filled} of the model's {K.width}x{K.height} input pixels")
+        shift = self.settings.render.get("shift")
+        if shift and not self.settings.recenter and v.center[2] > 0:
+            off = float(np.max(np.abs(v.center[:2])) / v.center[2])
+            if off > OFF_AXIS_FACTOR * shift:
+                out.append(f"the object's centre is {math.degrees(math.atan(off)):.0f} degrees off the optical axis; "
+                           f"this model was trained without --recenter on objects within "
+                           f"{math.degrees(math.atan(shift)):.0f} degrees of it, so its class and pose may be wrong "
+                           f"(crop the frame around the object, or use a model trained with --recenter)")
         dist = self.settings.render.get("distance")
         if dist and not self.settings.ref_distance:
             d_lo, d_hi = float(min(dist)), float(max(dist))
