@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from hbeo.evaluation.evaluate import summarize
@@ -119,3 +120,17 @@ def test_an_object_with_no_visible_view_is_a_failure_not_a_silent_drop(ci_model,
     n = len(ds.records(split="test", per_class=1))
     assert m["n_objects"] == n - 1 and m["n_queries"] == 2 * (n - 1)
     assert first.id not in m["per_query"]["object"]
+
+
+def test_summary_class_mean_is_the_mean_of_per_class_accuracies_not_the_accuracy():
+    """Three chairs (all right) and one table (wrong): accuracy 3/4, class mean (1 + 0) / 2; the symmetric
+    median forgives the table's quarter turn (order 4), the plain one does not."""
+    g = np.zeros((30, 30, 30), bool)
+    g[10:20, 10:20, 10:20] = True
+    R, quarter = np.eye(3), Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    rows = [{"class": "chair", "pred": "chair", "R_true": R, "R_pred": R, "grid": g, "truth": g, "ms": 1.0}] * 3 + \
+           [{"class": "table", "pred": "chair", "R_true": R, "R_pred": quarter, "grid": g, "truth": g, "ms": 1.0}]
+    m = summarize(rows, ("chair", "table"), "procedural", "test", 1, 0, "so3", False, 4)
+    assert m["accuracy"] == 0.75 and m["class_mean_accuracy"] == 0.5
+    assert m["per_class"]["table"]["pose_median_deg"] == pytest.approx(90)
+    assert m["per_class"]["table"]["pose_median_sym_deg"] == pytest.approx(0, abs=1e-6)

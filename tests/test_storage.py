@@ -89,3 +89,26 @@ def test_append_csv_leaves_the_older_rows_text_as_it_was(tmp_path):
     assert lines[0] == "a,b,c,d" and lines[1] == first[1] + ","
     assert lines[1].startswith("3,20.958594736930078,")
     assert lines[2] == ",0.1,,2" and lines[3] == "4,1e-300,,"
+
+
+class _Marker:
+    """Unpickling this writes a file: the proof that a reader ran code from the file."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+def test_read_npz_refuses_a_pickled_array_without_running_it(tmp_path):
+    """An .npz whose array is a pickled object (a crafted subspace, BEO model or grid set file) is refused by the
+    one reader of the project's .npz files, and nothing in it runs."""
+    from hbeo.errors import DataError
+    from hbeo.storage import read_npz
+    marker = tmp_path / "ran"
+    evil = tmp_path / "evil.npz"
+    np.savez(evil, meta=np.array('{"format_version": 1}'), basis=np.array([_Marker(str(marker))], dtype=object))
+    with pytest.raises(DataError, match="evil.npz"):
+        read_npz(evil, ["basis"], "subspace", 1)
+    assert not marker.exists()
