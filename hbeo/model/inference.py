@@ -1,20 +1,17 @@
 """`HBEO`: one file holding a trained model, and the inference API.
 
-The bundle holds HBEONet (configuration and weights), the object subspace, the model's
-camera (intrinsics of the images it was trained on), class names and preprocessing
-settings. ``predict(depth, intrinsics, mask=None)`` takes a user's depth image (metres,
-0 = none) with its own intrinsics, brings it into the model's camera
-(:mod:`hbeo.model.preprocess`), runs the network and back-projects the coefficients to a 30^3
-grid. Poses come back in the user's camera frame (R: object -> camera, see
-:mod:`hbeo.conventions`).
+The bundle holds HBEONet (configuration and weights), the object subspace, the model's camera (intrinsics of the
+images it was trained on), class names and preprocessing settings. ``predict(depth, intrinsics, mask=None)`` takes
+a user's depth image (metres, 0 = none) with its own intrinsics, brings it into the model's camera
+(:mod:`hbeo.model.preprocess`), runs the network and back-projects the coefficients to a 30^3 grid. Poses come
+back in the user's camera frame (R: object -> camera, see :mod:`hbeo.conventions`).
 
-An input the model cannot have understood is never answered confidently: an image whose
-object reaches none of the network's input pixels (object outside the model's view: wrong
-intrinsics, wrong mask) or whose object lies at an implausible distance
-(:data:`hbeo.model.depthfile.DEPTH_RANGE_M`, e.g. millimetres given as metres) raises
-:class:`~hbeo.errors.DataError`; one that is usable but suspicious (object partly outside the
-view, tiny in it, or far from the training distances) gets ``warnings`` and ``low_confidence``
-in its :class:`Prediction`. The file format (``.hbeo``, never unpickled) is
+An input the model cannot have understood is never answered confidently: an image whose object reaches none of
+the network's input pixels (object outside the model's view: wrong intrinsics, wrong mask) or lies at an
+implausible distance (:data:`hbeo.model.depthfile.DEPTH_RANGE_M`, e.g. millimetres given as metres) raises
+:class:`~hbeo.errors.DataError`; one that is usable but suspicious (object partly outside the view, tiny in it,
+far from the training distances, or off the axis the model was trained near) gets ``warnings`` and
+``low_confidence`` in its :class:`Prediction`. The file format (``.hbeo``, never unpickled) is
 :mod:`hbeo.model.modelfile`'s.
 """
 from __future__ import annotations
@@ -51,9 +48,8 @@ MIN_INPUT_FRACTION = 0.005
 #: an object centre farther than this factor outside the training distances: low confidence
 #: (models trained without distance normalization only)
 DISTANCE_FACTOR = 1.5
-#: a model trained without recentering warns when the object's centre, seen from the camera, is off the optical
-#: axis by more than this many times its renderings' ``shift`` (the largest offset it was trained on, as a
-#: fraction of the depth), in x or y
+#: a model trained without recentering warns when the object's centre is off the optical axis (x or y, as a
+#: fraction of its depth) by more than this times its renderings' ``shift`` (the largest it was trained on)
 OFF_AXIS_FACTOR = 2.0
 
 
@@ -86,9 +82,8 @@ class Prediction:
     #: camera, averaged over rolls); None for regression heads
     pose_probs: np.ndarray | None = None
     view_rotation: np.ndarray | None = None         #: (B, 3, 3) Q: virtual camera -> user camera
-    #: verified answers (:meth:`hbeo.model.verify.Verifier.apply`): (B,) dicts of the check's depth ``agreement``,
-    #: ``kept_network`` (below verify's ``min_agreement``: the network's answer stands), ``n_hypotheses`` and the
-    #: working image's ``stride``; None when not verified
+    #: (B,) dicts of verify's ``agreement``, ``kept_network``, ``n_hypotheses``, ``stride`` (None: not verified;
+    #: :meth:`hbeo.model.verify.Verifier.apply`)
     verified: list | None = None
 
     def to_dict(self, i: int = 0) -> dict:
@@ -391,8 +386,7 @@ class HBEO:
         if rolls > 1 and self.net.cfg.rotation != "bins":
             raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")
         if not isinstance(intrinsics, Intrinsics):
-            raise TypeError(f"intrinsics must be an hbeo.conventions.Intrinsics(fx, fy, cx, cy, width, height), got "
-                            f"{type(intrinsics).__name__}")
+            raise TypeError(f"intrinsics must be an hbeo.conventions.Intrinsics, got {type(intrinsics).__name__}")
         depth = np.asarray(depth)
         if depth.ndim not in (2, 3) or depth.size == 0:
             raise ValueError(f"depth must be one image (H, W) or a batch (B, H, W) with pixels, got shape {depth.shape}")
@@ -490,10 +484,9 @@ class HBEO:
         if shift and not self.settings.recenter and v.center[2] > 0:
             off = float(np.max(np.abs(v.center[:2])) / v.center[2])
             if off > OFF_AXIS_FACTOR * shift:
-                out.append(f"the object's centre is {math.degrees(math.atan(off)):.0f} degrees off the optical axis; "
-                           f"this model was trained without --recenter on objects within "
-                           f"{math.degrees(math.atan(shift)):.0f} degrees of it, so its class and pose may be wrong "
-                           f"(crop the frame around the object, or use a model trained with --recenter)")
+                out.append(f"the object's centre is {math.degrees(math.atan(off)):.0f} degrees off the optical axis; this "
+                           f"model was trained without --recenter within {math.degrees(math.atan(shift)):.0f} degrees "
+                           f"of it: crop the frame around the object, or use a model trained with --recenter")
         dist = self.settings.render.get("distance")
         if dist and not self.settings.ref_distance:
             d_lo, d_hi = float(min(dist)), float(max(dist))
