@@ -138,7 +138,7 @@ class Intrinsics:
     @classmethod
     def kinect(cls, width: int = 320, height: int = 240) -> "Intrinsics":
         """The default camera: Kinect-like, square pixels with f = 525 px per 640 px of image
-        width (the Kinect's horizontal field of view, 62 degrees), principal point at the centre."""
+        width (the Kinect's horizontal field of view, 62.7 degrees), principal point at the centre."""
         f = KINECT_F * width / KINECT_SIZE[0]
         return cls(f, f, (width - 1) / 2.0, (height - 1) / 2.0, int(width), int(height))
 

@@ -29,7 +29,8 @@ README_WORDS = 1500
 
 
 def _settings() -> dict[str, str]:
-    """Figures in the README's prose that are settings, not results: figure -> what it is (checked below)."""
+    """Figures in the README's prose that are settings, not results: figure -> what it is (those the code holds
+    are checked below; 14°, 15°, 30°, 180° and 0.001, mm to m, are definitions, derived or units)."""
     return {"63°": "the Kinect-like camera's horizontal field of view", "60 %": "VBPCA's variance fraction",
             "10 %": "the validation fraction", "0.45": "verify's min_agreement", "14°": "rotation-bin spacing",
             "10°": "rotation-bin target smoothing", "40°": "rotation-bin decoding window", "95 %": "interval level",
@@ -59,6 +60,13 @@ def test_settings_quoted_in_the_readme_are_the_code_s():
     K = C.Intrinsics.kinect(640, 480)
     assert round(math.degrees(2 * math.atan(K.width / 2 / K.fx))) == 63
     assert VARIANCE == 0.6 and VAL_FRACTION == 0.1 and LEVEL == 0.95 and VerifyConfig().min_agreement == 0.45
+    import inspect
+    from hbeo.model.depthfile import FOV_RANGE_DEG
+    from hbeo.model.inference import MIN_COVERAGE
+    from hbeo.model.network import HBEONet, NetConfig
+    sigma = NetConfig().bin_sigma_deg
+    assert sigma == 10 and "4.0 * self.cfg.bin_sigma_deg" in inspect.getsource(HBEONet.pose_matrix)   # 10°, 40°
+    assert FOV_RANGE_DEG[1] == 170 and MIN_COVERAGE == 0.9
 
 
 @pytest.mark.parametrize("page", [README, *DOCS], ids=lambda p: p.relative_to(ROOT).as_posix())
