@@ -298,7 +298,7 @@ def test_a_torch_pickle_is_refused_without_running_it(payload, tmp_path):
     crafted = tmp_path / "crafted.hbeo"
     crafted.write_bytes(blob)
     for load in (HBEO.load, VoxCNNBaseline.load):
-        with pytest.raises(DataError, match=r"crafted\.hbeo: old model file format.*python -m hbeo convert-model"):
+        with pytest.raises(DataError, match=r"crafted\.hbeo: a torch pickle, which hbeo does not open.*python -m hbeo convert-model"):
             load(crafted)
     with pytest.raises(DataError, match=r"crafted\.hbeo: not an old hbeo model file that can be read without "
                                         r"running code.*GLOBAL io.open was not an allowed global by default\)$"):
@@ -361,7 +361,7 @@ def legacy_voxcnn(model: VoxCNNBaseline, path):
 @pytest.mark.slow
 def test_old_hbeo_file_is_refused_then_converted_in_place(hbeo_model, tmp_path):
     old = legacy_hbeo(hbeo_model, tmp_path / "model.hbeo")
-    with pytest.raises(DataError, match=r"model\.hbeo: old model file format.*convert-model"):
+    with pytest.raises(DataError, match=r"model\.hbeo: a torch pickle, which hbeo does not open.*convert-model"):
         HBEO.load(old)
     d = tmp_path / "d.npy"
     np.save(d, depth_images()[1])
@@ -384,7 +384,7 @@ def test_old_hbeo_file_is_refused_then_converted_in_place(hbeo_model, tmp_path):
 
 def test_old_voxcnn_file_is_converted(vox_model, tmp_path):
     old = legacy_voxcnn(vox_model, tmp_path / "voxcnn.pt")
-    with pytest.raises(DataError, match=r"voxcnn\.pt: old model file format"):
+    with pytest.raises(DataError, match=r"voxcnn\.pt: a torch pickle, which hbeo does not open"):
         VoxCNNBaseline.load(old)
     kind, new = MF.convert_legacy(old, tmp_path / "voxcnn.hbeo")
     assert kind == "voxcnn" and old.exists()

@@ -253,7 +253,7 @@ def test_bad_model_files(tmp_path, trained):
         V.VoxCNNBaseline.load(junk)
     old = tmp_path / "voxcnn.pt"                  # the old torch-pickle format: refused without unpickling
     torch.save({"format_version": 1, "kind": "hbeo-voxcnn", "state_dict": {}}, old)
-    with pytest.raises(DataError, match="voxcnn.pt: old model file format.*python -m hbeo convert-model"):
+    with pytest.raises(DataError, match="voxcnn.pt: a torch pickle, which hbeo does not open.*python -m hbeo convert-model"):
         V.VoxCNNBaseline.load(old)
     good = trained.save(tmp_path / "good.hbeo")
     broken = tmp_path / "broken.hbeo"             # a configuration the stored weights do not fit

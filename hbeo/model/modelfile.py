@@ -283,8 +283,8 @@ def write_model(path, kind: str, meta: dict, weights: Mapping[str, torch.Tensor]
 # --------------------------------------------------------------------------- reading
 
 def _legacy_message(path) -> str:
-    return (f"old model file format (a torch pickle, which hbeo no longer opens: loading it could run code it "
-            f"carries); convert it once with `{CONVERT_HINT} {path} NEW.hbeo`")
+    return (f"a torch pickle, which hbeo does not open (loading it could run code it carries): an old-format hbeo "
+            f"model or another program's torch file; an old model converts once with `{CONVERT_HINT} {path} NEW.hbeo`")
 
 
 def _is_legacy(head: bytes, names) -> bool:
