@@ -165,7 +165,8 @@ def cmd_predict(args) -> int:
     verify = verify_config(args.verify, args.verify_set)  # bad settings fail before the model is read
     answer = predict_file(args.model, args.depth, args.intrinsics, args.mask, args.depth_scale, args.rolls, verify,
                           args.precision, out=args.out, mesh_path=args.mesh, prior_tau=args.prior_tau,
-                          members=args.ensemble, mirror=args.mirror, completion=_completion(args))
+                          members=args.ensemble, mirror=args.mirror, completion=_completion(args),
+                          face_object=args.face_object)
     for w in answer.warnings:
         print(f"warning: {args.depth}: {w} (low confidence)", file=sys.stderr)
     r = answer.to_json()
@@ -390,6 +391,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth-scale", type=POSITIVE, help="metres per stored unit (default 0.001 for integer images)")
     p.add_argument("--out", required=True, help="result JSON")
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
+    p.add_argument("--face-object", action="store_true",
+                   help="turn the view to look straight at the object first, as a model trained with --recenter does "
+                        "(for an object far off the optical axis of a model trained without it; on views near the "
+                        "axis it cost that model class accuracy: docs/your-depth-image.md)")
     _add_verify(p)
     _add_prior(p)
     _add_ensemble(p)

@@ -342,7 +342,7 @@ def test_evaluate_mirror_averages_only_the_class_and_is_refused_for_a_baseline(t
     assert not (tmp_path / "beo.json").exists()
 
 
-def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_without_recentering(trained):
+def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_without_recentering(trained, tmp_path):
     """The training renderings put the object's centre within ``shift`` (a fraction of the depth) of the axis;
     a centre beyond twice that is warned about, one on the axis is not."""
     from hbeo.conventions import Intrinsics
@@ -363,3 +363,12 @@ def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_withou
     u_far = int(K.cx + K.fx * 3 * shift) + 1       # three times the training shift
     far = model.predict(blob(u_far), K)
     assert far.low_confidence[0] and any("off the optical axis" in w for w in far.warnings[0])
+    assert np.array_equal(far.view_rotation[0], np.eye(3))
+    # predict --face-object: the view turned to the object (rotation Q about the camera's y axis), no warning
+    from hbeo.model.answer import predict_file
+    np.save(tmp_path / "far.npy", blob(u_far))
+    a = predict_file(trained / "model.hbeo", tmp_path / "far.npy", f"{K.fx},{K.fy},{K.cx},{K.cy}",
+                     face_object=True)
+    Q = a.prediction.view_rotation[0]
+    assert a.extra["face_object"] and not any("off the optical axis" in w for w in a.warnings)
+    assert Q[0, 2] > 2 * shift and np.allclose(Q @ Q.T, np.eye(3))       # +z of the view onto the object's centre

@@ -114,7 +114,8 @@ MESH_SUFFIXES = (".ply", ".obj", ".stl", ".off", ".glb")
 
 def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_scale: float | None = None,
                  rolls: int = 1, verify=None, precision: str = "float32", out=None, mesh_path=None,
-                 prior_tau: float = 0.0, members=(), mirror: bool = False, completion: str | None = None) -> Answer:
+                 prior_tau: float = 0.0, members=(), mirror: bool = False, completion: str | None = None,
+                 face_object: bool = False) -> Answer:
     """``python -m hbeo predict``: read ``depth_path`` (16-bit PNG in mm or float ``.npy``/``.tiff`` in m,
     times ``depth_scale``), its ``intrinsics`` ``"fx,fy,cx,cy"`` and optional mask file
     (:mod:`hbeo.model.depthfile`), and answer with the model file ``model_path`` (network arithmetic
@@ -127,7 +128,9 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     the answer's ``ensemble`` names them). ``mirror``: the class answer averaged with the mirrored image's
     (:meth:`hbeo.model.inference.HBEO.set_mirror`; the answer's ``mirror`` says so). ``completion``: the completion
     rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty; another than ``paper`` is
-    named in the answer's ``completion``)."""
+    named in the answer's ``completion``). ``face_object``: the view is turned to look straight at the object, as
+    the model's ``recenter`` setting does (:mod:`hbeo.model.preprocess`), for a model trained without it (the
+    answer's ``face_object`` says so)."""
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_files, check_outputs, json_text
@@ -146,10 +149,15 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     from hbeo.model.inference import HBEO           # torch: once the inputs are known good
     model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau, members=members).set_mirror(mirror)
     model.set_completion(completion)
+    if face_object and not model.settings.recenter:
+        from dataclasses import replace
+        model.settings = replace(model.settings, recenter=True)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
                     verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
     answer.extra["classes"] = list(model.classes)      # the order of "probabilities"
+    if face_object:
+        answer.extra["face_object"] = True
     if model.mirror:
         answer.extra["mirror"] = True
     if model.completion.name != "paper":

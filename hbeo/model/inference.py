@@ -486,7 +486,7 @@ class HBEO:
             if off > OFF_AXIS_FACTOR * shift:
                 out.append(f"the object's centre is {math.degrees(math.atan(off)):.0f} degrees off the optical axis; this "
                            f"model was trained without --recenter within {math.degrees(math.atan(shift)):.0f} degrees "
-                           f"of it: crop the frame around the object, or use a model trained with --recenter")
+                           f"of it: predict --face-object turns the view to the object")
         dist = self.settings.render.get("distance")
         if dist and not self.settings.ref_distance:
             d_lo, d_hi = float(min(dist)), float(max(dist))
