@@ -171,12 +171,54 @@ def test_so3_grid_is_near_uniform():
     assert s["nn_max"] < 1.3 * s["nn_mean"] and s["cover_max"] < 32 and s["nn_mean"] > 20
 
 
-def test_paper_score_is_available(data, views):
+def test_surface_points_outside_the_grid_lower_the_joint_score(beo, views, monkeypatch):
+    """Observed surface points that a candidate pose puts outside the grid count as unexplained filled voxels:
+    each costs 1 / (2 s^2) of the joint score, so a candidate that loses points off the grid scores worse than
+    one with the same partial grid that keeps them in."""
+    from hbeo.baselines import beo as beo_module
+    label, R, t, depth = views[0]
+    real = beo_module.iter_partial
+    extra = {}                                                       # candidate index -> points off the grid
+
+    def off_grid(*args, **kwargs):
+        for a, f, kn, outside in real(*args, **kwargs):
+            add = np.array([extra.get(a + i, 0) for i in range(len(f))])
+            yield a, f, kn, outside + add
+
+    monkeypatch.setattr(beo_module, "iter_partial", off_grid)
+    inside = beo.predict_view(depth, K, R, t, label_true=label, given_class=True)
+    extra[0] = 40
+    out = beo.predict_view(depth, K, R, t, label_true=label, given_class=True)
+    assert np.array_equal(out["coeffs"], inside["coeffs"])          # the same grid: only the score moves
+    assert out["score"] == pytest.approx(inside["score"] - 40 / (2 * beo.noise_var_), rel=1e-9)
+    # 1-DOF: the candidate the search picks loses its points off the grid -> another candidate wins
+    rng = 3
+    extra.clear()
+    first = beo.predict_view(depth, K, R, t, pose="1dof", label_true=label, given_class=True, rng=rng)
+    Rs = beo.candidates(R, "1dof", np.random.default_rng(rng))
+    best = int(np.argmin(geodesic_deg(Rs, np.broadcast_to(first["rotation"], Rs.shape))))
+    assert np.allclose(Rs[best], first["rotation"])
+    extra[best] = 10_000
+    second = beo.predict_view(depth, K, R, t, pose="1dof", label_true=label, given_class=True, rng=rng)
+    assert not np.allclose(second["rotation"], Rs[best]) and second["score"] < first["score"]
+
+
+def test_paper_score_is_available(data, views, beo):
     *_, G, L, sub = data
     paper = BEO(sub, score="paper").fit(G, L)
     label, R, t, depth = views[2]
     a = paper.predict_view(depth, K, R, t)
-    assert a["probabilities"].shape == (10,)
+    assert a["probabilities"].shape == (10,) and a["label"] == label          # an easy view: the true class
+    # the paper's score is log D(o' | c) + log P(c) + log P(r) alone (no residual term), maximized over c
+    d = paper.log_density(a["coeffs"].astype(np.float64))[0] + np.log(paper.class_prior_)
+    assert a["label"] == int(np.argmax(d)) and a["score"] == pytest.approx(d.max(), rel=1e-5)
+    assert np.allclose(a["probabilities"], np.exp(d - d.max()) / np.exp(d - d.max()).sum(), atol=1e-4)
+    joint = beo.predict_view(depth, K, R, t, label_true=a["label"], given_class=True)      # the joint score
+    assert np.allclose(joint["coeffs"], a["coeffs"])                 # the same projection ...
+    assert joint["score"] < a["score"] - 1                           # ... less the residual's log-likelihood
+    # known pose: the true class wins on most views (chance 10 %; measured 87 %)
+    hits = [paper.predict_view(dep, K, Rv, tv)["label"] == lab for lab, Rv, tv, dep in views]
+    assert np.mean(hits) >= 0.5, np.mean(hits)
 
 
 def test_save_load_round_trip(beo, views, tmp_path):

@@ -81,3 +81,55 @@ def test_edt_of_repeated_grids_is_the_one_field_a_pair_figure(monkeypatch, block
         want = np.array([np.linalg.norm(distance_field(a) - distance_field(b)) for a, b in zip(truth, pred)])
         got = metrics.edt_error(truth, pred, threads=threads)
         assert np.array_equal(got, want) and got[4] == 0 and got[2] > 0
+
+
+def _query(cls, pred, R_pred, grid, truth, **extra):
+    """One per-query row as hbeo.evaluation.evaluate.summarize reads it (true rotation: identity)."""
+    return {"class": cls, "pred": pred, "R_true": np.eye(3), "R_pred": R_pred, "grid": grid, "truth": truth,
+            "ms": 1.0, **extra}
+
+
+def test_summary_median_symmetric_pose_error_uses_the_symmetry_adjusted_errors():
+    """A table (4-fold symmetric about +z) turned by 180 degrees has a raw error of 180 and a symmetric
+    error of 0; a chair (no symmetry) turned by 60 degrees has 60 for both. Three tables and one chair:
+    raw median 180, symmetric median 0 (and symmetric mean 15)."""
+    from scipy.spatial.transform import Rotation
+    from hbeo.conventions import UP_SYMMETRY
+    from hbeo.evaluation.evaluate import summarize
+    assert UP_SYMMETRY["table"] == 4 and UP_SYMMETRY.get("chair", 1) == 1
+    g = cube(10, 20)
+    half = Rotation.from_euler("z", 180, degrees=True).as_matrix()
+    sixty = Rotation.from_euler("z", 60, degrees=True).as_matrix()
+    rows = [_query("table", "table", half, g, g)] * 3 + [_query("chair", "chair", sixty, g, g)]
+    m = summarize(rows, ("chair", "table"), "procedural", "test", 1, 0, "so3", False, 4)
+    pe = m["pose_error_deg"]
+    assert pe["median"] == pytest.approx(180) and pe["mean"] == pytest.approx(150)
+    assert pe["median_sym"] == pytest.approx(0, abs=1e-4)
+    assert pe["mean_sym"] == pytest.approx(15, abs=1e-4)
+    assert pe["within_30"] == 0 and pe["within_30_sym"] == 0.75
+    assert m["per_query"]["pose_sym_deg"] == pytest.approx([0, 0, 0, 60], abs=1e-3)
+    assert m["per_class"]["chair"]["pose_median_sym_deg"] == pytest.approx(60, abs=1e-4)
+
+
+def test_summary_completion_baseline_uses_the_predicted_and_the_true_class_mean_shapes():
+    """The class-mean completion baseline: ``predicted_class`` thresholds the mean shape of the class the
+    method *predicted*, ``true_class`` that of the true class. With a wrong prediction and two classes whose
+    mean shapes differ, the two differ: here the true class's mean is the object itself (IoU 1, e' 0) and the
+    predicted class's mean a disjoint box (IoU 0)."""
+    from hbeo.evaluation.evaluate import summarize
+    chair_mean = cube(10, 20).astype(np.float32) * 0.9             # >= 0.5 exactly on the object
+    table_mean = cube(2, 8).astype(np.float32) * 0.7               # disjoint from it
+    truth = cube(10, 20)
+    rows = [_query("chair", "table", np.eye(3), truth, truth, mean_pred=table_mean, mean_true=chair_mean),
+            _query("chair", "chair", np.eye(3), truth, truth, mean_pred=chair_mean, mean_true=chair_mean)]
+    m = summarize(rows, ("chair", "table"), "procedural", "test", 1, 0, "so3", False, 1)
+    b = m["completion_baseline"]
+    assert b["true_class"]["iou"] == pytest.approx(1.0) and b["true_class"]["edt"] == pytest.approx(0.0)
+    assert b["predicted_class"]["iou"] == pytest.approx(0.5)        # mean of 0 (wrong class) and 1
+    wrong = metrics.edt_error(truth, table_mean >= 0.5)
+    assert b["predicted_class"]["edt"] == pytest.approx(wrong / 2) and wrong > 0
+    assert b["predicted_class"]["naive"] == pytest.approx((metrics.naive_error(truth, table_mean >= 0.5) + 1) / 2)
+    assert b["true_class_iou_t03"] == pytest.approx(1.0)
+    assert "completion_baseline" not in summarize([{k: v for k, v in r.items() if not k.startswith("mean_")}
+                                                   for r in rows], ("chair", "table"), "procedural", "test",
+                                                  1, 0, "so3", False, 1)

@@ -53,17 +53,26 @@ def test_resamples_keep_class_counts_and_whole_objects():
 
 
 def test_a_constant_gap_gives_a_degenerate_paired_interval_and_unpaired_objects_are_left_out():
+    # a: 10 objects per class x 3 views, errors that vary from query to query; b: view 0 of the first 4
+    # objects of each class only, each with a's error on the same (object, view) plus 20
     a = fake("hbeo", "3dof", True, lambda k: 10.0 + k, 0.0)
-    b = fake("icp", "3dof", True, lambda k: 30.0 + k, 0.0, views=1,
+    a_k = [3 * (10 * (j // 4) + j % 4) for j in range(12)]          # a's query index of b's j-th query
+    b = fake("icp", "3dof", True, lambda j: 30.0 + a_k[j], 0.0, views=1,
              objects=[(c, f"{c}_{i:04d}") for c in CLS for i in range(4)])   # a subset: view 0 of 4 per class
     boot = paired.PairedBootstrap([a, b], n_boot=300)
     d = boot.contrast(("hbeo", "3dof"), ("icp", "3dof"), "pose_mean")
-    assert d.n_queries == 12 and d.n_objects == 12
-    # on the shared pairs, HBEO's error is ICP's minus 20 everywhere -> the same in every resample
+    assert d.n_queries == 12 and d.n_objects == 12                  # a's other 78 queries are left out
     hbeo_on_pairs = [10.0 + k for k in range(90) if k % 3 == 0 and (k // 3) % 10 < 4]
-    icp = [30.0 + k for k in range(12)]
-    assert d.value == pytest.approx(np.mean(hbeo_on_pairs) - np.mean(icp))
-    assert d.low <= d.value <= d.high
+    assert hbeo_on_pairs == [10.0 + k for k in a_k]
+    # on the shared pairs, HBEO's error is ICP's minus 20 everywhere -> the same in every resample
+    assert d.value == pytest.approx(-20.0)
+    assert d.low == pytest.approx(-20.0) and d.high == pytest.approx(-20.0)
+    # ... although each method's own statistic does vary over the resamples
+    own = boot.estimate(("hbeo", "3dof"), "pose_mean", on=[("icp", "3dof")])
+    assert own.value == pytest.approx(np.mean(hbeo_on_pairs)) and own.high - own.low > 10
+    assert own.n_queries == 12
+    # unpaired, HBEO's mean is over all of its 90 queries
+    assert boot.estimate(("hbeo", "3dof"), "pose_mean").value == pytest.approx(10.0 + np.mean(range(90)))
 
 
 def test_verdicts_follow_the_interval():
@@ -187,3 +196,25 @@ def test_seed_means_are_contrasted_with_intervals_over_seeds_and_objects(tmp_pat
     assert done.returncode == 2 and "bad.json: not a readable metrics file" in done.stderr
     done = subprocess.run(script[:4] + ["--b", str(files[3])] + script[-2:], capture_output=True, text=True)
     assert done.returncode == 2 and "at least two" in done.stderr
+
+
+def test_edt_nonempty_mean_leaves_out_the_empty_completions():
+    """Queries whose completion is empty (``empty`` column, or for older files an IoU and naive error of 0)
+    count in ``edt_mean`` but not in ``edt_nonempty_mean``."""
+    m = fake("hbeo", "3dof", True, 0.0, lambda k: 10.0 + k % 5)
+    q = m["per_query"]
+    gone = [k for k in range(90) if k % 7 == 0]                     # 13 empty completions, far off
+    for k in gone:
+        q["empty"][k], q["edt"][k], q["iou"][k] = True, 5000.0, 0.0
+    edt = np.array(q["edt"])
+    kept = np.array([k not in gone for k in range(90)])
+    boot = paired.PairedBootstrap([m], n_boot=200)
+    key = ("hbeo", "3dof")
+    e = boot.estimate(key, "edt_nonempty_mean")
+    assert e.value == pytest.approx(edt[kept].mean()) and e.n_queries == 90 - len(gone)
+    assert e.high < 100                                             # no resample sees an empty one
+    assert boot.estimate(key, "edt_mean").value == pytest.approx(edt.mean())
+    # a file without the empty column: emptiness read from IoU 0 with naive 0
+    del q["empty"]
+    old = paired.PairedBootstrap([m], n_boot=50).estimate(key, "edt_nonempty_mean")
+    assert old.value == pytest.approx(edt[kept].mean()) and old.n_queries == 90 - len(gone)
