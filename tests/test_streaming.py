@@ -460,3 +460,39 @@ def test_torch_stream_rolls_are_the_same_with_loader_workers(torch_stream):
     assert len(batches[0]) == len(batches[2]) > 2
     for a, b in zip(batches[0], batches[2]):
         assert torch.equal(a["depth"], b["depth"]) and torch.equal(a["rotation"], b["rotation"])
+
+
+def test_torch_stream_batches_carry_each_images_own_label_and_pose_target(torch_stream):
+    """Every image of a batch rendered together carries the class of the object it shows (the dataset's record,
+    and what the one-by-one path gives) and the axis-angle of its own rotation (object -> camera), not another
+    image's label nor the inverse rotation's target."""
+    from hbeo.rotations import axis_angle_to_matrix, geodesic_deg, matrix_to_axis_angle
+    _, data = torch_stream
+    d = data()
+    base = d.train.base
+    b, n = base.base, len(base.base)
+    idx = list(range(n)) + [n + 1, len(base) - 1]            # every object once, and two of a later pass
+    batch = base.render_batch(idx)
+    want = [b.classes.index(b.records[i % n].cls) for i in idx]
+    assert set(want) == {0, 1}
+    assert batch["label"].dtype == torch.long and batch["label"].tolist() == want
+    assert batch["object_index"].tolist() == [i % n for i in idx]
+    R = batch["rotation"].double().numpy()
+    aa = batch["axis_angle"].double().numpy()
+    angle = np.linalg.norm(aa, axis=1)
+    ok = (angle > 0.2) & (angle < np.pi - 0.2)                # away from 0 and pi: R and R^T differ clearly
+    assert ok.sum() >= len(idx) // 2
+    assert (geodesic_deg(R[ok], R[ok].transpose(0, 2, 1)) > 10).all()
+    np.testing.assert_allclose(aa[ok], matrix_to_axis_angle(R[ok]), atol=1e-4)
+    np.testing.assert_allclose(axis_angle_to_matrix(aa), R, atol=1e-4)        # every target rebuilds its rotation
+    # the one-by-one path: one image of each class, the same label, rotation and target
+    for c in (0, 1):
+        k = want.index(c)
+        one = base[idx[k]]
+        assert int(one["label"]) == c == int(batch["label"][k])
+        assert torch.equal(batch["rotation"][k], one["rotation"])
+        torch.testing.assert_close(batch["axis_angle"][k], one["axis_angle"], atol=1e-5, rtol=0)
+    # and the training view's batch (what the loop reads) keeps each image's label
+    items = d.train.__getitems__(idx)
+    assert [int(it["label"]) for it in items] == want
+    assert [int(it["object_index"]) for it in items] == [i % n for i in idx]
