@@ -31,6 +31,23 @@ def test_manifest_records_each_notebook_s_commit_and_training(tmp_path, monkeypa
     assert "## Deviations from the paper" in text and "HBEONet has 0.00 M parameters" in text
 
 
+def test_the_manifest_hardware_is_the_training_machine_s(tmp_path, monkeypatch):
+    """A later notebook run on another machine records its CPU with the notebook; the manifest's hardware stays
+    the machine that trained the models until the training notebook runs again."""
+    run = RunDir(tmp_path / "run").create()
+    monkeypatch.setattr(provenance, "git_state", lambda: {"git_commit": "a" * 40, "git_tag": "t", "git_dirty": False})
+    machines = iter([{"cpu": "A", "cpu_capability": "AVX2", "cores": 2}, {"cpu": "B", "cpu_capability": "AVX512"},
+                     {"cpu": "C", "cpu_capability": "AVX512"}])
+    monkeypatch.setattr(provenance, "hardware", lambda: next(machines))
+    m = provenance.write_manifest(run, "ci", "procedural", {"04_train": 60.0}, fresh=True)
+    assert m["hardware"]["cpu"] == "A"
+    m = provenance.write_manifest(run, "ci", "procedural", {"08_your_depth_image": 1.0})
+    assert m["hardware"]["cpu"] == "A" and m["notebooks"]["08_your_depth_image"]["cpu"] == "B"
+    assert m["notebooks"]["04_train"]["cpu_capability"] == "AVX2"
+    m = provenance.write_manifest(run, "ci", "procedural", {"04_train": 50.0})
+    assert m["hardware"]["cpu"] == "C"
+
+
 def test_git_state_ignores_the_run_s_own_outputs():
     state = provenance.git_state()
     assert len(state["git_commit"] or "") == 40 and state["git_dirty"] in (True, False)

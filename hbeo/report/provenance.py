@@ -104,22 +104,31 @@ def training_records(run) -> dict:
     return out
 
 
+#: the notebook that trains a run's models: the manifest's ``hardware`` is the machine it last ran on
+TRAINING_NOTEBOOK = "04_train"
+
+
 def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, fresh: bool = False,
                    training_seed: int = 0) -> dict:
     """Create or update the run's ``manifest.json`` (atomically); ``wall_s`` {notebook: seconds} is
-    merged into the notebooks already there, each with the commit it ran at (``fresh``: forget the
-    notebooks of earlier runs); ``training_seed``: the seed the run's models were trained with
-    (:attr:`hbeo.run.Run.training_seed`). ``run``: a RunDir or a path. Returns the manifest."""
+    merged into the notebooks already there, each with the commit it ran at and its machine's ``cpu`` and
+    ``cpu_capability`` (``fresh``: forget the notebooks of earlier runs); ``training_seed``: the seed the run's
+    models were trained with (:attr:`hbeo.run.Run.training_seed`). ``hardware`` is the machine that trained the
+    run's models: this one when the update runs :data:`TRAINING_NOTEBOOK` (or starts the manifest), else the one
+    recorded before. ``run``: a RunDir or a path. Returns the manifest."""
     from hbeo.evaluation.protocol import code_version
     run = RunDir.of(run)
     old = {} if fresh or not run.manifest.exists() else json.loads(run.manifest.read_text())
-    git = git_state()
+    git, hw = git_state(), hardware()
     nbs = dict(old.get("notebooks", {}))
     for name, sec in (wall_s or {}).items():
         nbs[name] = {"wall_s": sec, "commit": git["git_commit"], "dirty": git["git_dirty"],
-                     "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+                     "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                     "cpu": hw.get("cpu"), "cpu_capability": hw.get("cpu_capability")}
+    if old.get("hardware") and TRAINING_NOTEBOOK not in (wall_s or {}):
+        hw = old["hardware"]                        # the models were trained there, not here
     m = {"profile": profile, "dataset": dataset, "profile_settings": config.get_profile(profile).to_dict(),
-         **git, "code_version": code_version(), "versions": versions(), "hardware": hardware(),
+         **git, "code_version": code_version(), "versions": versions(), "hardware": hw,
          "seeds": {"training": int(training_seed), "evaluation": SEED, "rendering": SEED},
          "notebooks": nbs, "training": training_records(run),
          "one_commit": len({n["commit"] for n in nbs.values()}) <= 1 and not any(n["dirty"] for n in nbs.values()),
