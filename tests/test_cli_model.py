@@ -372,3 +372,13 @@ def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_withou
     Q = a.prediction.view_rotation[0]
     assert a.extra["face_object"] and not any("off the optical axis" in w for w in a.warnings)
     assert Q[0, 2] > 2 * shift and np.allclose(Q @ Q.T, np.eye(3))       # +z of the view onto the object's centre
+
+
+def test_notebook_08_loads_a_model_that_faces_the_object_as_predict_does(trained):
+    """``yourdepth.load_model(..., face_object=True)`` (notebook 08's ``face_object``) is ``predict --face-object``:
+    the model's views turn to the object; without it the model is as trained."""
+    from hbeo.lessons import yourdepth
+    plain, path = yourdepth.load_model(None, trained / "model.hbeo")
+    faced, _ = yourdepth.load_model(None, trained / "model.hbeo", face_object=True)
+    assert path == trained / "model.hbeo" and not plain.settings.recenter and faced.settings.recenter
+    assert faced.settings.render == plain.settings.render          # nothing else changes

@@ -148,13 +148,16 @@ def read_frame(depth_path, intrinsics: str | None = None, depth_scale: float | N
     return Frame(depth, K, mask, depth_path, mask_path, depth_scale, source=f"your file {depth_path.name}")
 
 
-def load_model(run, model_path=None):
+def load_model(run, model_path=None, face_object: bool = False):
     """The model to ask: ``model_path`` if given, else the model of ``run`` (a :class:`hbeo.run.Run`; trained
-    with the profile's recipe when missing, :meth:`hbeo.run.Run.model`). Returns (model, its path)."""
+    with the profile's recipe when missing, :meth:`hbeo.run.Run.model`); ``face_object``: its views turned to the
+    object first, as ``predict --face-object`` (:func:`hbeo.model.answer.face_the_object`). Returns (model, its
+    path)."""
+    from hbeo.model.answer import face_the_object
     from hbeo.model.inference import HBEO
-    if model_path is not None:
-        return HBEO.load(_path(model_path)), _path(model_path)
-    return run.model(), run.dir.model
+    model, path = (HBEO.load(_path(model_path)), _path(model_path)) if model_path is not None else \
+        (run.model(), run.dir.model)
+    return (face_the_object(model) if face_object else model), path
 
 
 def predict_frame(model, frame: Frame, verify: bool = True, rolls: int = 1):
@@ -361,7 +364,8 @@ def overlay_figure(model, frame: Frame, pred):
 
 # ----------------------------------------------------------------------------- files
 
-def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls: int = 1) -> dict:
+def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls: int = 1,
+                 face_object: bool = False) -> dict:
     """Write the completed mesh (:data:`MESH_FILE`, metres, camera frame: :meth:`HBEO.to_mesh`, as
     ``predict --mesh``) and the answer (:data:`ANSWER_JSON`: ``predict --out``'s keys (:meth:`hbeo.model.answer.Answer.to_json`), plus the intrinsics, the
     depth scale, the mask, the checks and, for the sample frame, the truth) into ``run``; returns the answer."""
@@ -371,7 +375,7 @@ def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls
     K = frame.intrinsics
     extra = {"intrinsics": {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "width": K.width, "height": K.height},
              "depth_scale": frame.depth_scale, "mask": str(frame.mask_path) if frame.mask_path else None,
-             "source": frame.source}
+             "source": frame.source, "classes": list(model.classes), **({"face_object": True} if face_object else {})}
     result = Answer(pred, pred, str(model_path), str(frame.depth_path), model.precision, rolls,
                     VerifyConfig().to_dict() if verify else None, extra).to_json()
     if frame.truth:

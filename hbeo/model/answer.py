@@ -62,6 +62,16 @@ def verify_config(verify: bool, settings: str | None = None):
         raise HBEOError(f"--verify-set: {err}") from None
 
 
+def face_the_object(model):
+    """``predict --face-object``: every view of ``model`` (an :class:`~hbeo.model.inference.HBEO`) is turned to look
+    straight at the object before the network sees it, as its ``recenter`` setting does
+    (:mod:`hbeo.model.preprocess`), for a model trained without it; returns the model."""
+    if not model.settings.recenter:
+        from dataclasses import replace
+        model.settings = replace(model.settings, recenter=True)
+    return model
+
+
 def predict(model, depth, K, mask=None, rolls: int = 1, verify=None, source=None):
     """One image through :class:`Predictor`: returns (answer, network)."""
     return Predictor(model, rolls, verify)(depth, K, mask, source)
@@ -149,9 +159,8 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     from hbeo.model.inference import HBEO           # torch: once the inputs are known good
     model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau, members=members).set_mirror(mirror)
     model.set_completion(completion)
-    if face_object and not model.settings.recenter:
-        from dataclasses import replace
-        model.settings = replace(model.settings, recenter=True)
+    if face_object:
+        face_the_object(model)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
                     verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
