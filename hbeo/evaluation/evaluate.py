@@ -200,10 +200,11 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
     warm = not warm_up
     many = {key for key, (m, _) in methods.items() if batched and _batchable(m)}
     for batch in rendered_chunks(rs, records, split, chunk, failures, bar):
-        seen = [(rec, v, truth, j) for _, rec, v, truth in batch for j in range(views)
-                if (v["depth"][j] > 0).any()]  # a view with nothing visible is not scored (never as 0) ...
-        for _, rec, v, truth in batch:      # ... and an object none of whose views shows a pixel is a failure
-            if not (v["depth"] > 0).any():
+        seen = []                           # a view with nothing visible is not scored (never as 0) ...
+        for _, rec, v, truth in batch:
+            visible = [j for j in range(views) if (v["depth"][j] > 0).any()]
+            seen += [(rec, v, truth, j) for j in visible]
+            if not visible:                 # ... and an object none of whose views shows a pixel is a failure
                 failures.append(failure(_name(rec), f"no pixel visible in any of its {views} query views at "
                                                     f"{rs.image_size[0]}x{rs.image_size[1]} (its grid has "
                                                     f"{int(np.count_nonzero(truth))} voxels); not scored",
