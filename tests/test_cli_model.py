@@ -374,11 +374,19 @@ def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_withou
     assert Q[0, 2] > 2 * shift and np.allclose(Q @ Q.T, np.eye(3))       # +z of the view onto the object's centre
 
 
-def test_notebook_08_loads_a_model_that_faces_the_object_as_predict_does(trained):
+def test_notebook_08_loads_a_model_that_faces_the_object_as_predict_does(trained, tmp_path):
     """``yourdepth.load_model(..., face_object=True)`` (notebook 08's ``face_object``) is ``predict --face-object``:
-    the model's views turn to the object; without it the model is as trained."""
+    the model's views turn to the object, its answer says so, and its settings (what it was trained with, what
+    ``save`` writes) stay as trained; without it the model is as trained."""
     from hbeo.lessons import yourdepth
+    from hbeo.model.inference import HBEO
     plain, path = yourdepth.load_model(None, trained / "model.hbeo")
     faced, _ = yourdepth.load_model(None, trained / "model.hbeo", face_object=True)
-    assert path == trained / "model.hbeo" and not plain.settings.recenter and faced.settings.recenter
-    assert faced.settings.render == plain.settings.render          # nothing else changes
+    assert path == trained / "model.hbeo" and not plain.recenters and faced.recenters
+    assert faced.settings == plain.settings and not faced.settings.recenter
+    assert faced.answer_settings() == {**plain.answer_settings(), "face_object": True}
+    assert list(plain.answer_settings()["classes"]) == list(plain.classes)
+    assert not HBEO.load(faced.save(tmp_path / "faced.hbeo")).recenters       # the trained setting is saved
+    with pytest.raises(ValueError, match="face_object must be True or False"):
+        faced.set_face_object("yes")
+    assert not faced.set_face_object(False).recenters

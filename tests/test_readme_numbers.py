@@ -63,7 +63,7 @@ def test_settings_quoted_in_the_readme_are_the_code_s():
     assert VARIANCE == 0.6 and VAL_FRACTION == 0.1 and LEVEL == 0.95 and VerifyConfig().min_agreement == 0.45
     import inspect
     from hbeo.model.depthfile import FOV_RANGE_DEG
-    from hbeo.model.inference import MIN_COVERAGE
+    from hbeo.model.viewcheck import MIN_COVERAGE
     from hbeo.model.network import HBEONet, NetConfig
     sigma = NetConfig().bin_sigma_deg
     assert sigma == 10 and "4.0 * self.cfg.bin_sigma_deg" in inspect.getsource(HBEONet.pose_matrix)   # 10°, 40°

@@ -73,8 +73,11 @@ def test_verify_works_at_the_model_cameras_pixel_density():
     originals, with their own rays; the true shape at its true pose agrees with a hole-free frame of it there,
     where at full resolution its point splat leaves holes (and the back showing through them) that disagree."""
     from hbeo.conventions import Intrinsics, backproject
-    from hbeo.model.verify import depth_agreement, shape_depth, surface_points, working_view
+    from hbeo.model.verify import depth_agreement, shape_depth, surface_points, working_stride, working_view
     model_K, big = Intrinsics.kinect(80, 60), Intrinsics(525.0, 530.0, 321.3, 238.7, 640, 480)
+    assert working_stride(big, model_K) == 8 and working_stride(model_K, model_K) == 1
+    assert working_stride(Intrinsics(1050.0, 525.0, 320, 240, 640, 480), model_K) == 8       # the smaller ratio
+    assert working_stride(Intrinsics.kinect(40, 30), model_K) == 1                          # coarser: 1
     depth = np.zeros((480, 640))
     depth[100:400, 150:500] = 1.7 + 0.001 * np.arange(350)         # any values: which pixels are kept
     d, K = working_view(depth, big, model_K)
@@ -151,7 +154,10 @@ def test_verify_at_the_true_pose_completes_better_than_the_network_alone(model_a
     # one class tried: the network's class and probabilities stand; an unmeetable agreement keeps HBEO's answer
     one = Verifier(model, VerifyConfig(classes=1, min_agreement=0)).verify(d, model.intrinsics, pred)
     assert one["label"] == pred.labels[0] and np.allclose(one["probabilities"], pred.probabilities[0])
-    assert 0 <= one["agreement"] <= 1 and not one["kept_network"]
+    assert 0 <= one["agreement"] <= 1 and not one["kept_network"] and one["stride"] == 1
+    K = model.intrinsics                               # the same frame at twice the resolution: stride 2
+    K2 = type(K)(2 * K.fx, 2 * K.fy, 2 * K.cx + 0.5, 2 * K.cy + 0.5, 2 * K.width, 2 * K.height)
+    assert Verifier(model, VerifyConfig(classes=1)).verify(d.repeat(2, 0).repeat(2, 1), K2, pred)["stride"] == 2
     kept = Verifier(model, VerifyConfig(classes=1, min_agreement=1.01)).verify(d, model.intrinsics, pred)
     assert kept["kept_network"] and np.array_equal(kept["grid"], pred.grids[0])
     assert np.array_equal(kept["rotation"], pred.rotation[0])

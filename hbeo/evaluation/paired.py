@@ -78,8 +78,10 @@ def read_metrics(paths) -> list[dict]:
 def queries(metrics: dict) -> pd.DataFrame:
     """The per-query table of one metrics dict, with ``key`` (class/object: the resampled unit) and
     ``empty`` (the completion had no filled voxel: the ``empty`` column when present, else an IoU of 0
-    together with a naive error of exactly 0, which only an empty completion gives)."""
-    q = pd.DataFrame(metrics["per_query"])
+    together with a naive error of exactly 0, which only an empty completion gives). ``per_query``: the file's
+    columns (a dict of lists) or a table already made from them."""
+    q = metrics["per_query"]
+    q = q.copy() if isinstance(q, pd.DataFrame) else pd.DataFrame(q)
     if "object" not in q:
         raise ValueError(f"{label(metrics)}: per_query has no object ids (a file older than the paired "
                          f"protocol); evaluate again")
@@ -244,8 +246,8 @@ def contrast_seeds(a: list[dict], b: list[dict], stats=CONTRASTS, n_boot: int = 
     if not shared:
         raise ValueError("the metrics files share no (object, view) query")
     # resample only the objects every file answered: an object some file lacks would leave resamples empty
-    evals = [dict(m, per_query=q[[kv in shared for kv in zip(q["key"], q["view"])]]
-                  .drop(columns=["key"]).to_dict("list")) for m, q in zip(evals, tables)]
+    evals = [dict(m, per_query=q[[kv in shared for kv in zip(q["key"], q["view"])]].reset_index(drop=True))
+             for m, q in zip(evals, tables)]
     boot = PairedBootstrap(evals, n_boot=n_boot, level=level, seed=seed)
     keys = [(m["method"], m["pose"]) for m in evals]
     out = {}

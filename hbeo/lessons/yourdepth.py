@@ -151,13 +151,12 @@ def read_frame(depth_path, intrinsics: str | None = None, depth_scale: float | N
 def load_model(run, model_path=None, face_object: bool = False):
     """The model to ask: ``model_path`` if given, else the model of ``run`` (a :class:`hbeo.run.Run`; trained
     with the profile's recipe when missing, :meth:`hbeo.run.Run.model`); ``face_object``: its views turned to the
-    object first, as ``predict --face-object`` (:func:`hbeo.model.answer.face_the_object`). Returns (model, its
-    path)."""
-    from hbeo.model.answer import face_the_object
+    object first, as ``predict --face-object`` (:meth:`hbeo.model.inference.HBEO.set_face_object`). Returns
+    (model, its path)."""
     from hbeo.model.inference import HBEO
     model, path = (HBEO.load(_path(model_path)), _path(model_path)) if model_path is not None else \
         (run.model(), run.dir.model)
-    return (face_the_object(model) if face_object else model), path
+    return model.set_face_object(face_object), path
 
 
 def predict_frame(model, frame: Frame, verify: bool = True, rolls: int = 1):
@@ -223,17 +222,15 @@ def checks(model, frame: Frame, pred) -> pd.DataFrame:
     of view), the mask, the object's distance and size against the training images', sensor noise, how much of
     the object the network sees, and predict's warnings. ``ok`` is False where this frame is outside what the
     model was trained on."""
-    from hbeo.model.inference import DISTANCE_FACTOR, MIN_COVERAGE, MIN_INPUT_FRACTION
-    from hbeo.model.preprocess import to_model_view
+    from hbeo.model.viewcheck import DISTANCE_FACTOR, MIN_COVERAGE, min_input_pixels
     from hbeo.model.depthfile import DEPTH_RANGE_M
     K, Km = frame.intrinsics, model.intrinsics
-    min_filled = int(max(16, MIN_INPUT_FRACTION * Km.width * Km.height))
+    min_filled = min_input_pixels(Km)
     d = frame.object_depth
     med = float(np.median(d[d > 0]))
     fov = math.degrees(2 * math.atan(K.width / (2 * K.fx)))
     fov_m = math.degrees(2 * math.atan(Km.width / (2 * Km.fx)))
-    view = to_model_view(frame.depth, K, Km, frame.mask, recenter=model.settings.recenter,
-                         ref_distance=model.settings.ref_distance)
+    view = model.view(frame.depth, K, frame.mask)
     lo, hi = training_distances(model)
     n_obj = int((d > 0).sum())
     pts, _ = backproject(d, K)
@@ -269,11 +266,9 @@ def checks(model, frame: Frame, pred) -> pd.DataFrame:
 
 def input_figure(model, frame: Frame):
     """The depth image (metres, colour bar), its mask, and the network's input (the frame resampled into the
-    model's camera, :func:`hbeo.model.preprocess.to_model_view`)."""
+    model's camera as :meth:`HBEO.predict` gives it to the network, :meth:`HBEO.view`)."""
     import matplotlib.pyplot as plt
-    from hbeo.model.preprocess import to_model_view
-    view = to_model_view(frame.depth, frame.intrinsics, model.intrinsics, frame.mask,
-                         recenter=model.settings.recenter, ref_distance=model.settings.ref_distance)
+    view = model.view(frame.depth, frame.intrinsics, frame.mask)
     fig, ax = plt.subplots(1, 3, figsize=(12, 3.4), gridspec_kw={"width_ratios": [1.25, 1, 1]})
     d = np.ma.masked_less_equal(frame.depth, 0)
     im = ax[0].imshow(d, cmap="viridis_r")
@@ -364,8 +359,7 @@ def overlay_figure(model, frame: Frame, pred):
 
 # ----------------------------------------------------------------------------- files
 
-def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls: int = 1,
-                 face_object: bool = False) -> dict:
+def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls: int = 1) -> dict:
     """Write the completed mesh (:data:`MESH_FILE`, metres, camera frame: :meth:`HBEO.to_mesh`, as
     ``predict --mesh``) and the answer (:data:`ANSWER_JSON`: ``predict --out``'s keys (:meth:`hbeo.model.answer.Answer.to_json`), plus the intrinsics, the
     depth scale, the mask, the checks and, for the sample frame, the truth) into ``run``; returns the answer."""
@@ -375,7 +369,7 @@ def write_answer(run, model, model_path, frame: Frame, pred, verify: bool, rolls
     K = frame.intrinsics
     extra = {"intrinsics": {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy, "width": K.width, "height": K.height},
              "depth_scale": frame.depth_scale, "mask": str(frame.mask_path) if frame.mask_path else None,
-             "source": frame.source, "classes": list(model.classes), **({"face_object": True} if face_object else {})}
+             "source": frame.source, **model.answer_settings()}
     result = Answer(pred, pred, str(model_path), str(frame.depth_path), model.precision, rolls,
                     VerifyConfig().to_dict() if verify else None, extra).to_json()
     if frame.truth:

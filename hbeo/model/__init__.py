@@ -4,7 +4,8 @@ Owns the network (:mod:`~hbeo.model.network`), the one training loop used by eve
 project (:mod:`~hbeo.model.loop`), fitting HBEO from a run folder (:mod:`~hbeo.model.fit`), training images as
 torch datasets (:mod:`~hbeo.model.trainingdata`), the
 exact camera-roll and mirror augmentation (:mod:`~hbeo.model.augment`, :mod:`~hbeo.model.mirror`), bringing a user's depth image into the
-model's camera (:mod:`~hbeo.model.preprocess`), the safe model file and inference
+model's camera (:mod:`~hbeo.model.preprocess`) and whether the model can have understood it
+(:mod:`~hbeo.model.viewcheck`), the safe model file and inference
 (:mod:`~hbeo.model.inference`, :mod:`~hbeo.model.modelfile`), the completion rules that turn back-projected
 coefficients into a grid (:mod:`~hbeo.model.completion_rule`), reading a user's depth image
 (:mod:`~hbeo.model.depthfile`), checking an answer against the depth (:mod:`~hbeo.model.verify`), one

@@ -62,16 +62,6 @@ def verify_config(verify: bool, settings: str | None = None):
         raise HBEOError(f"--verify-set: {err}") from None
 
 
-def face_the_object(model):
-    """``predict --face-object``: every view of ``model`` (an :class:`~hbeo.model.inference.HBEO`) is turned to look
-    straight at the object before the network sees it, as its ``recenter`` setting does
-    (:mod:`hbeo.model.preprocess`), for a model trained without it; returns the model."""
-    if not model.settings.recenter:
-        from dataclasses import replace
-        model.settings = replace(model.settings, recenter=True)
-    return model
-
-
 def predict(model, depth, K, mask=None, rolls: int = 1, verify=None, source=None):
     """One image through :class:`Predictor`: returns (answer, network)."""
     return Predictor(model, rolls, verify)(depth, K, mask, source)
@@ -138,9 +128,8 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     the answer's ``ensemble`` names them). ``mirror``: the class answer averaged with the mirrored image's
     (:meth:`hbeo.model.inference.HBEO.set_mirror`; the answer's ``mirror`` says so). ``completion``: the completion
     rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty; another than ``paper`` is
-    named in the answer's ``completion``). ``face_object``: the view is turned to look straight at the object, as
-    the model's ``recenter`` setting does (:mod:`hbeo.model.preprocess`), for a model trained without it (the
-    answer's ``face_object`` says so)."""
+    named in the answer's ``completion``). ``face_object``: the view is turned to look straight at the object
+    (:meth:`hbeo.model.inference.HBEO.set_face_object`; the answer's ``face_object`` says so)."""
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_files, check_outputs, json_text
@@ -158,21 +147,11 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
         raise DataError(mask_path, f"the mask covers no measured pixel of the depth image {depth_path}")
     from hbeo.model.inference import HBEO           # torch: once the inputs are known good
     model = HBEO.load(model_path, precision=precision, prior_tau=prior_tau, members=members).set_mirror(mirror)
-    model.set_completion(completion)
-    if face_object:
-        face_the_object(model)
+    model.set_completion(completion).set_face_object(face_object)
     pred, net = Predictor(model, rolls, verify)(depth, K, mask, source=depth_path)
     answer = Answer(pred, net, str(model_path), str(depth_path), model.precision, rolls,
                     verify.to_dict() if verify is not None else None, prior_tau=model.prior_tau)
-    answer.extra["classes"] = list(model.classes)      # the order of "probabilities"
-    if face_object:
-        answer.extra["face_object"] = True
-    if model.mirror:
-        answer.extra["mirror"] = True
-    if model.completion.name != "paper":
-        answer.extra["completion"] = model.completion.to_dict()
-    if model.members:
-        answer.extra["ensemble"] = list(model.member_files)
+    answer.extra.update(model.answer_settings())      # classes, face_object, mirror, completion, ensemble
     data = None
     if mesh_path:
         mesh = model.to_mesh(pred)                    # fails before anything is written

@@ -6,12 +6,9 @@ a user's depth image (metres, 0 = none) with its own intrinsics, brings it into 
 (:mod:`hbeo.model.preprocess`), runs the network and back-projects the coefficients to a 30^3 grid. Poses come
 back in the user's camera frame (R: object -> camera, see :mod:`hbeo.conventions`).
 
-An input the model cannot have understood is never answered confidently: an image whose object reaches none of
-the network's input pixels (object outside the model's view: wrong intrinsics, wrong mask) or lies at an
-implausible distance (:data:`hbeo.model.depthfile.DEPTH_RANGE_M`, e.g. millimetres given as metres) raises
-:class:`~hbeo.errors.DataError`; one that is usable but suspicious (object partly outside the view, tiny in it,
-far from the training distances, or off the axis the model was trained near) gets ``warnings`` and
-``low_confidence`` in its :class:`Prediction`. The file format (``.hbeo``, never unpickled) is
+An input the model cannot have understood is never answered confidently (:mod:`hbeo.model.viewcheck`): it raises
+:class:`~hbeo.errors.DataError`, or, usable but suspicious, gets ``warnings`` and ``low_confidence`` in its
+:class:`Prediction`. The file format (``.hbeo``, never unpickled) is
 :mod:`hbeo.model.modelfile`'s.
 """
 from __future__ import annotations
@@ -33,25 +30,13 @@ from hbeo.limits import MAX_ROLLS, ROLL_BATCH, check_rolls, one_blas_thread
 from hbeo.model.modelfile import ModelSettings, read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import View, to_model_view
-from hbeo.model.depthfile import DEPTH_RANGE_M
+from hbeo.model.viewcheck import check_view
 from hbeo.subspace.basis import ObjectSubspace
 
 #: inference precisions: float32 (default, exact) or bfloat16 (network weights and activations;
 #: ~2.5x faster convolutions on CPUs with AVX512-BF16; class agreement with float32 ~99 %, see
 #: benchmarks/README.md). The back-projection stays float32.
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
-
-#: below this fraction of the object's pixels inside the model's view, a prediction is low confidence
-MIN_COVERAGE = 0.9
-#: fewer non-zero input pixels than this fraction of the model's image (and at least 16): low confidence
-MIN_INPUT_FRACTION = 0.005
-#: an object centre farther than this factor outside the training distances: low confidence
-#: (models trained without distance normalization only)
-DISTANCE_FACTOR = 1.5
-#: a model trained without recentering warns when the object's centre is off the optical axis (x or y, as a
-#: fraction of its depth) by more than this times its renderings' ``shift`` (the largest it was trained on)
-OFF_AXIS_FACTOR = 2.0
-
 
 def _finite(x) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and math.isfinite(x)
@@ -137,6 +122,7 @@ class HBEO:
         self.set_precision(precision)
         self.set_prior_tau(prior_tau)
         self.set_mirror(False)
+        self.set_face_object(False)
         self.set_completion()
 
     def set_completion(self, rule=None, threshold: float | None = None) -> "HBEO":
@@ -173,6 +159,41 @@ class HBEO:
             raise ValueError(f"mirror must be True or False, got {mirror!r}")
         self.mirror = bool(mirror)
         return self
+
+    def set_face_object(self, face: bool) -> "HBEO":
+        """Turn every view to look straight at the object before the network sees it (as a model trained with
+        ``recenter`` does, :mod:`hbeo.model.preprocess`), for a model trained without it; returns self. The
+        model's ``settings`` keep what it was trained with (``predict --face-object``)."""
+        if not isinstance(face, (bool, np.bool_)):
+            raise ValueError(f"face_object must be True or False, got {face!r}")
+        self.face_object = bool(face)
+        return self
+
+    @property
+    def recenters(self) -> bool:
+        """Whether :meth:`predict` turns each view to the object: trained so, or :meth:`set_face_object`."""
+        return bool(self.settings.recenter or self.face_object)
+
+    def view(self, depth, intrinsics: Intrinsics, mask=None) -> View:
+        """One depth image (H, W) metres with its ``intrinsics`` (and mask) in the model's camera, as
+        :meth:`predict` gives it to the network (:func:`hbeo.model.preprocess.to_model_view`)."""
+        return to_model_view(depth, intrinsics, self.intrinsics, mask, recenter=self.recenters,
+                             ref_distance=self.settings.ref_distance)
+
+    def answer_settings(self) -> dict:
+        """What an answer's JSON records of how this model answered beside its class, pose and shape: the
+        ``classes`` (the order of its probabilities), and ``face_object``, ``mirror``, ``completion`` (a rule other
+        than the paper's) and ``ensemble`` (members' files) where they apply."""
+        out = {"classes": list(self.classes)}
+        if self.face_object:
+            out["face_object"] = True
+        if self.mirror:
+            out["mirror"] = True
+        if self.completion.name != "paper":
+            out["completion"] = self.completion.to_dict()
+        if self.members:
+            out["ensemble"] = list(self.member_files)
+        return out
 
     def set_prior_tau(self, tau: float, class_counts=None, source: str | None = None) -> "HBEO":
         """Prior correction (logit adjustment) of the class answer; returns self.
@@ -394,13 +415,12 @@ class HBEO:
         masks = [None] * len(batch) if mask is None else (np.asarray(mask)[None] if np.ndim(mask) == 2 else mask)
         if len(masks) != len(batch):
             raise ValueError(f"{len(masks)} masks for {len(batch)} depth images")
-        s = self.settings
-        views = [to_model_view(d, intrinsics, self.intrinsics, m, recenter=s.recenter,
-                               ref_distance=s.ref_distance) for d, m in zip(batch, masks)]
-        warns = [self._check_view(v, i if len(views) > 1 else None) for i, v in enumerate(views)]
+        views = [self.view(d, intrinsics, m) for d, m in zip(batch, masks)]
+        warns = [check_view(v, self.intrinsics, self.settings, self.recenters, i if len(views) > 1 else None)
+                 for i, v in enumerate(views)]
         x0 = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]
-        nets = [(self._net, s)] + [(m._net, m.settings) for m in self.members]
+        nets = [(self._net, self.settings)] + [(m._net, m.settings) for m in self.members]
         one = rolls == 1 and len(nets) == 1             # one pass of one network: its own pose decoding
         net_s, prob_sum, coeff_sums, P, pose0 = 0.0, 0.0, [0.0] * len(nets), 0.0, None
         step = max(1, ROLL_BATCH // len(views))        # rolls per network pass: memory bounded whatever rolls is
@@ -448,7 +468,8 @@ class HBEO:
         coeffs = coeffs / len(nets)
         grids = self.complete(coeffs, probs.argmax(1))
         t3 = time.perf_counter()
-        scale = np.array([v.distance / s.ref_distance if s.ref_distance else 1.0 for v in views])
+        ref = self.settings.ref_distance
+        scale = np.array([v.distance / ref if ref else 1.0 for v in views])
         trans = np.stack([v.center / np.linalg.norm(v.center) * v.distance for v in views])
         labels = probs.argmax(1)
         return Prediction(probs, labels, [self.classes[i] for i in labels], R, matrix_to_axis_angle(R), trans,
@@ -460,39 +481,6 @@ class HBEO:
         """Model views (N, H, W) as the network's input: (N, 1, H, W) on its device, in its precision."""
         return torch.from_numpy(x[:, None]).to(self.device, PRECISIONS[self.precision]).contiguous(
             memory_format=torch.channels_last)
-
-    def _check_view(self, v: View, index: int | None) -> list[str]:
-        """Warnings (list of str) for one image's model view; DataError when the network's input
-        would be empty or the object's distance is implausible (see the module docstring)."""
-        who = "" if index is None else f"image {index}: "
-        lo, hi = DEPTH_RANGE_M
-        if not lo <= v.distance <= hi:
-            raise DataError(None, f"{who}the object is {v.distance:.3g} m away, outside the plausible {lo:g}..{hi:g} m; "
-                                  f"depth must be in metres (check the depth scale)")
-        if v.filled == 0:
-            raise DataError(None, f"{who}the object falls outside the model's view ({v.coverage:.0%} of its pixels "
-                                  f"inside, no input pixel filled); check the intrinsics (fx,fy,cx,cy of this "
-                                  f"image) and the mask")
-        out = []
-        if v.coverage < MIN_COVERAGE:
-            out.append(f"only {v.coverage:.0%} of the object's pixels fall inside the model's view (the rest is cut "
-                       f"off); check the intrinsics and the mask")
-        K = self.intrinsics
-        if v.filled < max(16, MIN_INPUT_FRACTION * K.width * K.height):
-            out.append(f"the object fills only {v.filled} of the model's {K.width}x{K.height} input pixels")
-        shift = self.settings.render.get("shift")
-        if shift and not self.settings.recenter and v.center[2] > 0:
-            off = float(np.max(np.abs(v.center[:2])) / v.center[2])
-            if off > OFF_AXIS_FACTOR * shift:
-                out.append(f"the object's centre is {math.degrees(math.atan(off)):.0f} degrees off the optical axis; this "
-                           f"model was trained without --recenter within {math.degrees(math.atan(shift)):.0f} degrees "
-                           f"of it: predict --face-object turns the view to the object")
-        dist = self.settings.render.get("distance")
-        if dist and not self.settings.ref_distance:
-            d_lo, d_hi = float(min(dist)), float(max(dist))
-            if not d_lo / DISTANCE_FACTOR <= v.distance <= d_hi * DISTANCE_FACTOR:
-                out.append(f"the object is {v.distance:.2f} m away; the model was trained at {d_lo:g}..{d_hi:g} m")
-        return out
 
     def _roll_permutation(self, angle: float) -> torch.Tensor:
         """(N,) index of the grid rotation nearest Rz(angle) G_j for each bin j (cached): a view rolled by

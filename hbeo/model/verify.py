@@ -167,15 +167,21 @@ def shape_depth(points: np.ndarray, R: np.ndarray, t: np.ndarray, intrinsics: In
     return np.where(np.isfinite(near), near, 0.0).reshape(K.height, K.width)
 
 
+def working_stride(intrinsics: Intrinsics, model_intrinsics: Intrinsics) -> int:
+    """:func:`working_view`'s s: the whole number of image pixels per model pixel, ``min(fx / fx_model,
+    fy / fy_model)`` rounded down, at least 1."""
+    return max(1, int(min(intrinsics.fx / model_intrinsics.fx, intrinsics.fy / model_intrinsics.fy)))
+
+
 def working_view(depth: np.ndarray, intrinsics: Intrinsics, model_intrinsics: Intrinsics) -> tuple[np.ndarray, Intrinsics]:
     """The image verify works on: ``depth`` (H, W) seen with ``intrinsics``, reduced to the model camera's pixel
     density, at which :func:`surface_points` cover a shape without holes and the settings were chosen. Every
     s-th pixel in each direction from pixel s // 2, with s the whole number of image pixels per model pixel
-    (``min(fx / fx_model, fy / fy_model)`` rounded down, at least 1): the kept pixels are exactly the originals,
+    (:func:`working_stride`): the kept pixels are exactly the originals,
     the intrinsics theirs (f / s; c' = (c - s // 2) / s). s = 1 (the model's own camera, a coarser one)
     returns the inputs."""
-    K, Km = intrinsics, model_intrinsics
-    s = max(1, int(min(K.fx / Km.fx, K.fy / Km.fy)))
+    K = intrinsics
+    s = working_stride(K, model_intrinsics)
     if s == 1:
         return depth, K
     o = s // 2
@@ -274,7 +280,7 @@ class Verifier:
         ``min_agreement``: the answer is HBEO's own), "stride" (:func:`working_view`'s s), "ms"}."""
         t0 = time.perf_counter()
         cfg, model = self.cfg, self.model
-        full = intrinsics
+        stride = working_stride(intrinsics, model.intrinsics)
         depth, intrinsics = working_view(depth, intrinsics, model.intrinsics)
         Rs, log_pr = self.hypotheses_rotations(pred, i)
         probs = np.asarray(pred.probabilities[i], np.float64)
@@ -313,7 +319,7 @@ class Verifier:
         out = {"probabilities": out_probs, "label": int(top[ci]), "rotation": Rs[r], "translation": ts[r],
                "coeffs": o, "grid": grid, "score": float(scores[r, ci]), "n_hypotheses": int(scores.size),
                "agreement": agree, "kept_network": agree < cfg.min_agreement,
-               "stride": int(round(full.fx / intrinsics.fx))}
+               "stride": stride}
         if out["kept_network"]:                          # unsure: HBEO's own answer, as if not verified
             out.update(probabilities=np.asarray(pred.probabilities[i], np.float64), label=int(pred.labels[i]),
                        rotation=pred.rotation[i], translation=pred.translation[i],
