@@ -1,24 +1,33 @@
 """Run profiles and path settings: the one place that sizes a run and finds data.
 
 Profiles
-    ``ci``   6 training objects per class, 80x60 images, a tiny network trained 8 epochs: the
-             notebooks under nbval and the tests (minutes).
-    ``quick`` the default run (``make reproduce``, procedural data): the ``cpu`` recipe, fewer epochs and
-             test queries, within 45 minutes on 2 cores.
-    ``cpu``  a scaled-down reproduction that finishes on a 2-core machine (the ModelNet10 reference run).
-    ``full`` the paper's scale (GPU): all objects, 320x240 images, 1,800 streamed views per object, 2 epochs
-             (12.9 M image passes, the paper's ~7 M images x ~2 epochs).
-    ``gpu-lease`` the paper's network and images, one epoch of 100 streamed views per training object (359 k
-             image passes), sized before any GPU measurement for 30 minutes of one GPU; it has no time budget
-             of its own (for a shorter rental, the device job's ``--budget`` trains the steps that fit).
+    ``ci``
+        6 training objects per class, 80x60 images, a tiny network trained 8 epochs: the
+        notebooks under nbval and the tests (minutes).
+    ``quick``
+        the default run (``make reproduce``, procedural data): the ``cpu`` recipe, fewer epochs and
+        test queries, within 45 minutes on 2 cores.
+    ``cpu``
+        a scaled-down reproduction that finishes on a 2-core machine (the ModelNet10 reference run).
+    ``full``
+        the paper's scale (GPU): all objects, 320x240 images, 1,800 streamed views per object, 2 epochs
+        (12.9 M image passes, the paper's ~7 M images x ~2 epochs).
+    ``gpu-lease``
+        the paper's network and images, one epoch of 100 streamed views per training object (359 k
+        image passes), sized before any GPU measurement for 30 minutes of one GPU; it has no time budget
+        of its own (for a shorter rental, the device job's ``--budget`` trains the steps that fit).
 
 Paths (environment variables override the defaults)
-    ``HBEO_VOX30``      the ModelNet10 30^3 grids (``modelnet10_vox30.npz``); default: the
-                        first ``shared/modelnet10_vox30/modelnet10_vox30.npz`` found beside
-                        the repository or the working directory or any of their parents.
-    ``HBEO_DATA``       where downloads go (default ``~/.cache/hbeo``).
-    ``HBEO_CACHE``      voxelization cache (default ``<HBEO_DATA>/cache``).
-    ``HBEO_RESULTS``    where runs write (default ``<repo>/results``).
+    ``HBEO_VOX30``
+        the ModelNet10 30^3 grids (``modelnet10_vox30.npz``); default: the
+        first ``shared/modelnet10_vox30/modelnet10_vox30.npz`` found beside
+        the repository or the working directory or any of their parents.
+    ``HBEO_DATA``
+        where downloads go (default ``~/.cache/hbeo``).
+    ``HBEO_CACHE``
+        voxelization cache (default ``<HBEO_DATA>/cache``).
+    ``HBEO_RESULTS``
+        where runs write (default ``<repo>/results``).
 """
 from __future__ import annotations
 

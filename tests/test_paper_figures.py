@@ -212,3 +212,15 @@ def test_pose_summary_reports_median_iqr_and_the_paper_mean(evals):
     assert "BEO (known pose)" not in ps.index
     stats = [c for c in ps.columns if c not in ("queries", "share < 30° (%)")]
     assert all(c.split()[0] in ("median", "p25", "p75", "mean") for c in stats)
+
+
+def test_the_completion_gallery_titles_an_empty_completion():
+    """A blank panel says why it is blank: the empty completion's title says so, a filled one's does not."""
+    g = np.zeros((30, 30, 30), bool)
+    g[10:20, 10:20, 10:20] = True
+    s = {"depth": np.ones((6, 8)), "class": "chair", "truth": g, "hbeo": g, "beo": np.zeros_like(g),
+         "hbeo_class": "chair", "beo_class": "table"}
+    fig = pf.completion_gallery([s])
+    titles = [a.get_title() for a in fig.axes]
+    plt.close(fig)
+    assert titles[2] == "HBEO: chair" and titles[3] == "BEO known pose: table\n(empty completion)"

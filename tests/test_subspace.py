@@ -113,8 +113,10 @@ def test_fixed_counts_and_shared_dim_target(some):
     assert target.dim_ >= 15
     lower = ObjectSubspace(variance=target.variance_used_ - 1e-6).fit(G, L, SOME, progress=False)
     assert lower.dim_ < 15                         # the smallest fraction that reaches the target
-    with pytest.raises(ValueError, match="out of reach"):
+    with pytest.raises(ValueError, match="out of reach.*fewer than its training objects.*more training objects"):
         ObjectSubspace(shared_dim=10_000).fit(G, L, SOME, progress=False)
+    with pytest.raises(ValueError, match=r"out of reach.*raise max_components \(2; reached by chair, table\)"):
+        ObjectSubspace(shared_dim=10_000, max_components=2).fit(G, L, SOME, progress=False)
 
 
 def test_save_load_round_trip(fitted, data, tmp_path):

@@ -59,13 +59,15 @@ def test_the_subspace_keeps_the_fewest_components_that_reach_the_fraction():
     """ObjectSubspace's own count rule, by hand: ratios [5, 3, 1, 1] / 10 have running sums 0.5, 0.8,
     0.9, 1.0, so a fraction of 0.6 needs 2 components, 0.5 and 0.8 (reached exactly) 1 and 2, 1.0 all 4."""
     from hbeo.subspace.basis import ObjectSubspace
-    count = ObjectSubspace._count_ratio
+    count = ObjectSubspace(max_components=2)._count_ratio
     r = np.array([5.0, 3.0, 1.0, 1.0]) / 10
     assert [count(r, f) for f in (0.1, 0.5, 0.6, 0.8, 0.85, 0.9, 1.0)] == [1, 1, 2, 2, 3, 3, 4]
     assert count(r, None) == 4 and count(np.array([]), 0.6) == 0
     assert count(np.array([1.0]), 0.6) == 1 and count(np.array([0.7, 0.3]), 0.6) == 1
     with pytest.warns(UserWarning, match="raise max_components"):
         assert count(np.array([0.2, 0.1]), 0.6) == 2                 # never reached: all of them
+    with pytest.warns(UserWarning, match="limited by its training objects, not max_components"):
+        ObjectSubspace(max_components=3)._count_ratio(np.array([0.2, 0.1]), 0.6)   # fewer than the cap
     for f in np.linspace(0.05, 1.0, 20):                              # the same rule as size.count_at
         assert count(r, f) == size.count_at(r, f)
 

@@ -122,6 +122,8 @@ class BEO:
     ridge : ridge of the partial projection (as :meth:`ObjectSubspace.partial_project`).
     chunk : candidates voxelized and projected together.
 
+    Notes
+    -----
     Fitted attributes: ``classes_``, ``class_prior_`` (C,), ``weights_`` (C, J), ``means_``
     (C, J, k), ``precisions_cholesky_`` (C, J, k, k) (scikit-learn's convention: precision =
     P P^T), ``coef_scale_`` (mean per-dimension coefficient variance), ``noise_var_``,

@@ -2,18 +2,18 @@
 a run's baselines; each implements :class:`hbeo.evaluation.method.Method` (HBEO through
 :class:`hbeo.evaluation.method.HBEOMethod`), the one interface of :func:`hbeo.evaluation.evaluate.evaluate_method`.
 
-=========  ==========================  =======================================================
-method     pose settings               what it is
-=========  ==========================  =======================================================
-``hbeo``   ``3dof``                    HBEONet (:mod:`hbeo.model.inference`): depth -> class,
-                                       pose, coefficients in one shot
-``beo``    ``known``, ``1dof``,        BEO (:mod:`hbeo.baselines.beo`): partial grid, partial
-           ``3dof``                    projection, class-pose posterior by search
-``icp``    ``1dof``, ``3dof``          ICP against the true class's mean shape
-                                       (:mod:`hbeo.baselines.icp`)
-``voxcnn`` ``known``                   3-D CNN from the partial grid to class and
-                                       completed grid (:mod:`hbeo.baselines.voxcnn`)
-=========  ==========================  =======================================================
+==========  ==========================  =======================================================
+method      pose settings               what it is
+==========  ==========================  =======================================================
+``hbeo``    ``3dof``                    HBEONet (:mod:`hbeo.model.inference`): depth -> class,
+                                        pose, coefficients in one shot
+``beo``     ``known``, ``1dof``,        BEO (:mod:`hbeo.baselines.beo`): partial grid, partial
+            ``3dof``                    projection, class-pose posterior by search
+``icp``     ``1dof``, ``3dof``          ICP against the true class's mean shape
+                                        (:mod:`hbeo.baselines.icp`)
+``voxcnn``  ``known``                   3-D CNN from the partial grid to class and
+                                        completed grid (:mod:`hbeo.baselines.voxcnn`)
+==========  ==========================  =======================================================
 
 Each lives in one file of the run folder: :attr:`hbeo.rundir.RunDir.model` for ``hbeo``,
 :meth:`hbeo.rundir.RunDir.baseline` for the others.

@@ -18,42 +18,54 @@ by default it does, never leaving a grid empty),
 verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
 or predicted, ``{file, reason, step, object, split}``: left out, the others still scored)
-``accuracy``                         fraction of queries with the right class
-``class_mean_accuracy``              the mean over classes of each class's accuracy (the paper's Table I
-                                     total; :func:`class_mean_accuracy`): the training split is 9:1
-                                     between its largest and smallest class, the test split nearly balanced
-``pose_error_deg``                   ``mean``, ``median`` (geodesic, raw: the paper's metric) and
-                                     ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
-                                     turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`);
-                                     ``within_30``, ``within_30_sym``: fraction of queries within 30
-                                     degrees (Acc@pi/6; a median hides a bimodal error, e.g. flips)
-``completion``                       ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.subspace.metrics`),
-                                     ``empty_fraction`` and ``empty`` (the share and the number of queries
-                                     whose completed grid is empty; files written before the count lack it)
-``completion_paper``                 HBEO under another completion rule than the paper's (``completion_rule``):
-                                     the paper's rule (back-projection >= 0.5) on the same coefficients,
-                                     scored like ``completion`` (``edt``, ``naive``, ``iou``, ``empty_fraction``,
-                                     ``empty``) with its own ``per_query`` ``edt``, ``iou``, ``empty``
-``completion_baseline``              the trivial answer "the class's mean training shape" (the
-                                     subspace's class mean thresholded at 0.5), scored like
-                                     ``completion``: ``predicted_class`` (the model's class) and
-                                     ``true_class`` ({``edt``, ``naive``, ``iou``} each), and
-                                     ``true_class_iou_t03`` (threshold 0.3); absent when the method
-                                     has no class means
-``runtime_ms``                       ``mean_per_query``, ``median_per_query`` (preprocessing + network +
-                                     back-projection, one view per call, after one warm-up call)
-``device``                           the network's device, only when HBEO ran on another than the CPU
-                                     (:meth:`hbeo.model.inference.HBEO.to`; ``runtime_ms`` is then that device's)
-``per_class``                        {class: {``n``, ``accuracy``, ``pose_mean_deg``,
-                                     ``pose_median_deg``, ``pose_median_sym_deg``, ``pose_within_30``, ``edt``,
-                                     ``naive``, ``iou``}}
-``confusion``                        rows: true class, columns: predicted class (counts)
-``per_query``                        columns over queries (for distributions and paired comparisons):
-                                     ``object`` (the record's id), ``view`` (its view index: the same
-                                     object, view and seed is the same image for every method),
-                                     ``class``, ``pred``, ``pose_deg``, ``pose_sym_deg``, ``edt``,
-                                     ``naive``, ``iou``, ``empty`` (the completed grid has no filled
-                                     voxel), ``ms``
+
+``accuracy``
+    fraction of queries with the right class
+``class_mean_accuracy``
+    the mean over classes of each class's accuracy (the paper's Table I
+    total; :func:`class_mean_accuracy`): the training split is 9:1
+    between its largest and smallest class, the test split nearly balanced
+``pose_error_deg``
+    ``mean``, ``median`` (geodesic, raw: the paper's metric) and
+    ``mean_sym``, ``median_sym`` (modulo each class's near-symmetry
+    turns about the up axis, :data:`hbeo.conventions.UP_SYMMETRY`);
+    ``within_30``, ``within_30_sym``: fraction of queries within 30
+    degrees (Acc@pi/6; a median hides a bimodal error, e.g. flips)
+``completion``
+    ``edt``, ``naive``, ``iou`` (means; see :mod:`hbeo.subspace.metrics`),
+    ``empty_fraction`` and ``empty`` (the share and the number of queries
+    whose completed grid is empty; files written before the count lack it)
+``completion_paper``
+    HBEO under another completion rule than the paper's (``completion_rule``):
+    the paper's rule (back-projection >= 0.5) on the same coefficients,
+    scored like ``completion`` (``edt``, ``naive``, ``iou``, ``empty_fraction``,
+    ``empty``) with its own ``per_query`` ``edt``, ``iou``, ``empty``
+``completion_baseline``
+    the trivial answer "the class's mean training shape" (the
+    subspace's class mean thresholded at 0.5), scored like
+    ``completion``: ``predicted_class`` (the model's class) and
+    ``true_class`` ({``edt``, ``naive``, ``iou``} each), and
+    ``true_class_iou_t03`` (threshold 0.3); absent when the method
+    has no class means
+``runtime_ms``
+    ``mean_per_query``, ``median_per_query`` (preprocessing + network +
+    back-projection, one view per call, after one warm-up call)
+``device``
+    the network's device, only when HBEO ran on another than the CPU
+    (:meth:`hbeo.model.inference.HBEO.to`; ``runtime_ms`` is then that device's)
+``per_class``
+    {class: {``n``, ``accuracy``, ``pose_mean_deg``,
+    ``pose_median_deg``, ``pose_median_sym_deg``, ``pose_within_30``, ``edt``,
+    ``naive``, ``iou``}}
+``confusion``
+    rows: true class, columns: predicted class (counts)
+``per_query``
+    columns over queries (for distributions and paired comparisons):
+    ``object`` (the record's id), ``view`` (its view index: the same
+    object, view and seed is the same image for every method),
+    ``class``, ``pred``, ``pose_deg``, ``pose_sym_deg``, ``edt``,
+    ``naive``, ``iou``, ``empty`` (the completed grid has no filled
+    voxel), ``ms``
 """
 from __future__ import annotations
 

@@ -41,13 +41,18 @@ def curves_figure(run, model_file):
 
 def summary(metrics: dict) -> str:
     """One line: accuracy against chance, median pose error (raw and modulo symmetry), IoU against
-    the class mean shape's, and milliseconds per query."""
+    the class mean shape's (and, under a completion rule other than the paper's, the IoU under the paper's
+    rule, back-projection >= 0.5, on the same queries), and milliseconds per query."""
     chance = 1 / len(metrics["classes"])
     pe, comp = metrics["pose_error_deg"], metrics["completion"]
+    rule, paper = metrics.get("completion_rule") or {}, metrics.get("completion_paper")
+    how = [f"the class's mean shape: {metrics['completion_baseline']['predicted_class']['iou']:.3f}"]
+    if paper and rule.get("name", "paper") != "paper":
+        how = [f"{rule['name']} rule at {rule['threshold']:g}",
+               f"the paper's rule, >= 0.5: {paper['iou']:.3f} with {paper['empty']} empty"] + how
     return (f"accuracy {metrics['accuracy']:.3f} (chance {chance:.3f}); median pose error "
             f"{pe['median']:.1f}° (modulo symmetries {pe['median_sym']:.1f}°); "
-            f"IoU {comp['iou']:.3f} (the class's mean shape: "
-            f"{metrics['completion_baseline']['predicted_class']['iou']:.3f}); "
+            f"IoU {comp['iou']:.3f} ({'; '.join(how)}); "
             f"{metrics['runtime_ms']['median_per_query']:.1f} ms per query")
 
 

@@ -178,15 +178,17 @@ def class_hypotheses(model, pred, n: int = 3) -> pd.DataFrame:
                          "probability": p[order]})
 
 
-def rotation_hypotheses(model, pred, frame: Frame | None = None, n: int = 3) -> pd.DataFrame:
-    """The network's rotation modes (:meth:`hbeo.model.verify.Verifier.hypotheses_rotations`: a rotation-bins
+def rotation_hypotheses(model, pred, frame: Frame | None = None, n: int | None = None) -> pd.DataFrame:
+    """The network's ``n`` rotation modes (None: as many as verify tries, :attr:`VerifyConfig.rotations
+    <hbeo.model.verify.VerifyConfig>`; :meth:`hbeo.model.verify.Verifier.hypotheses_rotations`: a rotation-bins
     model's most probable separated modes with their probability mass; a regression head's answer turned about
-    the up axis, equally weighted): the axis-angle vector (radians), the angle from the answer and, for the
-    sample frame, from the true rotation (degrees)."""
+    the up axis by 360°/n steps, equally weighted): the axis-angle vector (radians), the angle from the answer
+    and, for the sample frame, from the true rotation (degrees)."""
     from dataclasses import replace
     from hbeo.model.verify import Verifier, VerifyConfig
     from hbeo.rotations import geodesic_deg, matrix_to_axis_angle
-    v = Verifier(model, replace(VerifyConfig(), rotations=n))
+    cfg = VerifyConfig()
+    v = Verifier(model, replace(cfg, rotations=cfg.rotations if n is None else n))
     Rs, logw = v.hypotheses_rotations(pred, 0)
     w = np.exp(logw)
     rows = {"mode": np.arange(1, len(Rs) + 1),

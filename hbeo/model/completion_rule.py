@@ -19,7 +19,7 @@ the bool (30, 30, 30) completion of it:
 How the metrics treat an empty grid (:mod:`hbeo.subspace.metrics`): its distance field is the grid's diagonal
 R sqrt(3) (~52 voxels at R = 30) everywhere, so an empty completion of a non-empty target scores e' of
 several thousand (~7,450 on ModelNet10's test objects, ten times HBEO's mean), IoU 0, and the naive score e
-below 0. A never-empty rule removes those worst cases; it is an option, not the paper's method.
+exactly 0 (1 - ||o|| / ||o||). A never-empty rule removes those worst cases; it is an option, not the paper's method.
 
 Imports numpy only (a subspace is passed in).
 """

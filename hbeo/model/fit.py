@@ -33,8 +33,9 @@ from hbeo.model.trainingdata import (CLASS_BALANCE, DATA_SOURCES, ClassBalanced,
                                     training_data)
 
 
-#: What the shape term of the loss measures (``python -m hbeo train --shape-loss``): ``coeffs`` (the
-#: paper: the L2 norm of the standardized coefficient error, every coefficient weighted alike) or
+#: What the shape term of the loss measures (``python -m hbeo train --shape-loss``): ``coeffs`` (the paper's
+#: L2 norm of the coefficient error, here on standardized coefficients, this project's choice: every
+#: coefficient weighted alike) or
 #: ``voxels`` (the L2 norm of the completed grid's occupancy error: the basis is orthonormal, so
 #: ``||W c_hat - W c|| = ||c_hat - c||`` on raw coefficients; the leading components, which carry most
 #: voxels, weigh most), divided by the root-mean-square coefficient standard deviation so that both

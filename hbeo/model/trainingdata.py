@@ -445,20 +445,21 @@ def training_data(run, view: ViewOptions, val_fraction: float = 0.1, augment_rol
     instead, IoU >= ``twin_iou``: :func:`hbeo.data.datasets.validation_mask`); ``augment_roll`` rolls every training
     view by a random angle each time it is read (:mod:`hbeo.model.augment`); ``augment_mirror`` (data ``memory``
     only) mirrors every training view with probability 1/2 each time it is read, its object across its class's
-    left-right plane (:mod:`hbeo.model.mirror`, before the roll). ``source``:
+    left-right plane (:mod:`hbeo.model.mirror`, before the roll). ``source``: ``memory``, the rendered training
+    set, all in memory (:class:`ViewArrays`), or
 
-    ``memory``  the rendered training set, all in memory (:class:`ViewArrays`).
-    ``shards``  the rendered training set read lazily, :data:`SHARD_MIX` shards in memory at a time,
-                shuffled by blocks of that many shards (:class:`ShardSampler`); coefficients standardized with
-                the statistics of every image (as ``memory``, up to rounding).
-    ``stream``  rendered on the fly (:class:`FreshPoses`, a fresh pose per object per pass, any
-                image renderable alone) from ``dataset``'s (a loaded Dataset) training records of
-                ``profile`` (a Profile) with render ``settings``; validation: ``profile.stream_val_views`` views of
-                each validation object, rendered once; coefficients standardized with the statistics of
-                the run's training grids. Needs the run's subspace, renders nothing first. With render
-                ``settings.backend`` "torch" (grid datasets only) each training batch is rendered at
-                once on the training device from the objects' grids kept there (:meth:`FreshPoses.render_batch`).
-    Memory use of ``shards`` and ``stream`` does not grow with the number of images."""
+    ``shards``
+        the rendered training set read lazily, :data:`SHARD_MIX` shards in memory at a time, shuffled by blocks of
+        that many shards (:class:`ShardSampler`); coefficients standardized with the statistics of every image (as
+        ``memory``, up to rounding).
+    ``stream``
+        rendered on the fly (:class:`FreshPoses`, a fresh pose per object per pass, any image renderable alone) from
+        ``dataset``'s (a loaded Dataset) training records of ``profile`` (a Profile) with render ``settings``;
+        validation: ``profile.stream_val_views`` views of each validation object, rendered once; coefficients
+        standardized with the statistics of the run's training grids. Needs the run's subspace, renders nothing
+        first. With render ``settings.backend`` "torch" (grid datasets only) each training batch is rendered at once
+        on the training device from the objects' grids kept there (:meth:`FreshPoses.render_batch`). The memory use of
+        ``shards`` and ``stream`` does not grow with the number of images."""
     run = RunDir.of(run)
     if source == "memory":
         data = ViewArrays(run.renders("train"), view, progress=progress)

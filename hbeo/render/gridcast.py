@@ -23,6 +23,7 @@ Method, per ray ``p(z) = a + z b`` (padded index coordinates, linear in the came
        the nearest cell with a corner >= 0.5, less sqrt(3) voxels) and (0.5 - field) / slope (slope:
        a bound on the field's gradient), so empty space costs few samples;
     3. refine the bracketing pair of samples by ``refine`` bisections, then one secant step.
+
     Rays are compacted as they finish, so the cost follows the samples actually taken. Like any fixed
     step march it can miss a feature thinner than ``step`` along the ray that ``grid_mesh`` shows.
 

@@ -211,7 +211,7 @@ def completion_bars(cs: pd.DataFrame, evals: list[dict]):
 
 def completion_gallery(samples: list[dict]):
     """Rows of input depth, true grid, HBEO's and BEO's (known pose) completion, from
-    :func:`hbeo.evaluation.protocol.sample_completions`."""
+    :func:`hbeo.evaluation.protocol.sample_completions`; an empty completion's panel says so in its title."""
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(len(samples), 4, figsize=(7.2, 1.9 * len(samples)), squeeze=False)
     for row, s in zip(axes, samples):
@@ -219,7 +219,8 @@ def completion_gallery(samples: list[dict]):
         for a, key, title in zip(row[1:], ["truth", "hbeo", "beo"],
                                  ["truth", f"HBEO: {s['hbeo_class']}", f"BEO known pose: {s['beo_class']}"]):
             a.imshow(figures.render_voxels(s[key], size=110))
-            a.set_title(title, fontsize=8)
+            empty = not np.asarray(s[key]).any()
+            a.set_title(title + ("\n(empty completion)" if empty else ""), fontsize=8)
             a.axis("off")
     fig.tight_layout()
     return fig

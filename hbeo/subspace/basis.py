@@ -6,13 +6,15 @@ and the means of all classes) and is orthonormalized by an SVD that keeps singul
 values above ``rank_tol`` x the largest (rank-revealing). Each basis column (and each
 class's VBPCA direction) has its entry of largest magnitude positive (:func:`~hbeo.subspace.vbpca.fix_signs`),
 so the same grids give the same basis on any LAPACK build. Objects are coordinates
-in that basis:
+in that basis::
 
     project       o' = W^T o                       (complete grids)
     reconstruct   o_hat = W o'  (>= 0.5 -> filled when rebinarized)
     partial_project  o' from known-filled / known-empty voxels only:
                   least squares  A o' = b,  A = W^T V^T V W,  b = W^T V^T w
-                  or the paper's L1 version  argmin 1/2 ||A o' - b||^2 + lam ||o'||_1
+                  or an L1 version  argmin 1/2 ||A o' - b||^2 + lam ||o'||_1  (the paper's Eq. 10
+                  has the unsquared norm ||A o' - b||_2; the squared one is the standard lasso, solved
+                  by FISTA, with the same minimizers along lam's path but lam on another scale)
 
 V (the selection of known voxels) is never formed: A is built from the known rows
 of W, or as I - (unknown rows)^T (unknown rows) when fewer voxels are unknown.
@@ -135,15 +137,16 @@ class ObjectSubspace:
         self.fingerprint_ = data_fingerprint(X, labels)
         return self
 
-    @staticmethod
-    def _count_ratio(ratio: np.ndarray, f: float | None) -> int:
+    def _count_ratio(self, ratio: np.ndarray, f: float | None) -> int:
         """Fewest leading directions whose variance ratios reach ``f`` (all of them if f is None)."""
         if f is None or len(ratio) == 0:
             return len(ratio)
         reach = np.cumsum(ratio) >= f - 1e-12
         if not reach.any():
+            cause = ("raise max_components" if len(ratio) >= self.max_components else
+                     "its components are limited by its training objects, not max_components")
             warnings.warn(f"a class reaches only {ratio.sum():.3f} of its variance with {len(ratio)} "
-                          f"components (< {f}); raise max_components", stacklevel=3)
+                          f"components (< {f}); {cause}", stacklevel=3)
             return len(ratio)
         return int(np.argmax(reach)) + 1
 
@@ -154,8 +157,13 @@ class ObjectSubspace:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if dim(1.0) < target:
+                capped = [c for c, r in spectra.items() if len(r) >= self.max_components]
+                how = (f"raise max_components ({self.max_components}; reached by {', '.join(capped)})" if capped
+                       else f"each class keeps at most one component fewer than its training objects (fewest: "
+                            f"{min(len(r) for r in spectra.values())}), below max_components "
+                            f"({self.max_components}): more training objects per class")
                 raise ValueError(f"shared_dim={target} is out of reach: all components of all classes give "
-                                 f"{dim(1.0)}; raise max_components")
+                                 f"{dim(1.0)}; {how}")
             lo, hi = 0.0, 1.0
             for _ in range(60):
                 mid = (lo + hi) / 2
@@ -221,12 +229,15 @@ class ObjectSubspace:
                         lam: float = 0.01, max_iter: int = 500, tol: float = 1e-6) -> np.ndarray:
         """Coefficients (N, k) from partially observed grids.
 
+        Parameters
+        ----------
         observed : (N, 30, 30, 30) values at the known voxels (True = filled; ignored where unknown).
         known : same shape, True where the voxel is known (filled or empty), False = unobserved.
         method : ``"lstsq"`` solves (A + ridge I) o' = b (ridge, relative to A's scale of at most 1,
             keeps directions the mask does not observe at 0 instead of arbitrary values; ridge=0
-            gives the minimum-norm least-squares solution); ``"lasso"`` minimizes the paper's
-            1/2 ||A o' - b||^2 + lam ||o'||_1 by FISTA (step 1, since A <= I).
+            gives the minimum-norm least-squares solution); ``"lasso"`` minimizes
+            1/2 ||A o' - b||^2 + lam ||o'||_1 by FISTA (step 1, since A <= I): the paper's Eq. 10 with the
+            residual's norm squared (the paper's is unsquared), so lam is on another scale than the paper's.
         """
         self._check()
         obs = _flat(observed) > 0.5
