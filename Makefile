@@ -31,7 +31,7 @@ $(VENV)/.installed: requirements.txt requirements-nodeps.txt scripts/setup.sh
 	touch $@
 
 reproduce: setup
-	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter 1,$(RESUME)),,--fresh)$(if $(filter-out 0,$(SEED)), --seed $(SEED))
+	$(PY) -m hbeo reproduce --profile $(PROFILE) --dataset $(DATASET) $(if $(filter-out 0,$(RESUME)),,--fresh)$(if $(filter-out 0,$(SEED)), --seed $(SEED))
 
 book: setup
 	$(PY) -m hbeo book $(RUN)

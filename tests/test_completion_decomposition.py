@@ -216,3 +216,37 @@ def test_default_threshold_is_the_reference_runs_validation_choice():
     if len(scan):                                           # the rule's second version: its choice is the minimum
         best = scan.loc[scan["mean_edt"].idxmin(), "threshold"]
         assert float(best) == C.NONEMPTY_THRESHOLD
+
+
+def test_a_metrics_file_of_other_queries_is_named_in_a_short_error():
+    """A decomposition over more queries than the evaluation file scored says so in one line, not with every
+    missing key."""
+    sub = _Sub()
+    test = _queries(sub, n_obj=300)
+    fewer = {"method": "hbeo", "per_query": {"class": test.cls[:6].tolist(), "object": test.object[:6].tolist(),
+                                             "view": test.view[:6].tolist()}}
+    keys = list(zip(test.cls, test.object, test.view))
+    with pytest.raises(KeyError, match=r"594 of 600 queries are not in the hbeo metrics file \(6 queries\)") as err:
+        D.per_query(fewer, keys)
+    assert len(str(err.value)) < 300
+
+
+@pytest.mark.slow
+def test_the_completion_gap_decomposes_the_queries_the_evaluation_scored(ci_model, copy_run, tmp_path, monkeypatch):
+    """Notebook 06's decomposition on a profile whose evaluation scores the first objects of each class (``quick``
+    and ``ci`` on ModelNet10; here the ci run with 1 object per class): it scores the evaluation file's queries
+    (it used to take every test object and stop on a KeyError)."""
+    from hbeo.evaluation import protocol
+    from hbeo.report import completion_gap
+    from hbeo.run import Run
+    run = copy_run(ci_model.parent, tmp_path / "run", ["model.hbeo", "subspace.npz", "grids_train.npz",
+                                                     "grids_test.npz", "render_train"])
+    monkeypatch.setattr(protocol, "eval_plan", lambda profile, method, pose: (1, 1))
+    r = Run.open("ci", "procedural", run.path)
+    h = protocol.evaluation(r, "hbeo", "3dof", progress=False)
+    protocol.evaluation(r, "beo", "known", progress=False)
+    assert h["n_objects"] == len(h["classes"])                   # one per class: fewer than the ci test split
+    completion_gap.write_decomposition(r, progress=False)
+    table = pd.read_csv(run.table(completion_gap.NAME))
+    check = table[table["section"] == "check"].iloc[0]
+    assert check["n"] == h["n_queries"]

@@ -56,15 +56,19 @@ def test_git_state_ignores_the_run_s_own_outputs():
 def test_fresh_clears_what_a_run_trained_but_keeps_data(tmp_path):
     run = RunDir(tmp_path / "run").create()
     keep = [run.path / "grids_train.npz", run.path / "subspace.npz", run.path / "eval_so3_bins.json",
-            run.path / "05_table1.csv"]
+            run.path / "validation.csv"]
+    # an earlier run's notebooks, tables, figures and report go too: a fresh run that stops midway leaves
+    # nothing of the earlier one that looks like its own
     gone = [run.model, run.path / "model_opt_paper.hbeo", run.baseline("beo"), run.baseline("voxcnn"),
-            run.evaluation("hbeo", "3dof"), run.evaluation("hbeo-verify", "3dof")]
+            run.evaluation("hbeo", "3dof"), run.evaluation("hbeo-verify", "3dof"), run.path / "05_table1.csv",
+            run.path / "06_pose_completion.ipynb", run.path / "08_completion.ply", run.path / "REPRODUCTION.md"]
     for p in keep + gone:
         p.write_text("x")
     (run.path / "train_model").mkdir()
     (run.path / "train_model" / "checkpoint.pt").write_text("x")
+    (run.path / "book").mkdir()
     removed = notebooks.clear_products(run)
-    assert set(removed) == set(gone) | {run.path / "train_model"}
+    assert set(removed) == set(gone) | {run.path / "train_model", run.path / "book"}
     assert all(p.exists() for p in keep) and not any(p.exists() for p in gone)
 
 

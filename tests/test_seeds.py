@@ -255,6 +255,20 @@ def test_reproduce_refuses_to_mix_two_training_seeds_in_one_folder(tmp_path, mon
     assert json.loads(RunDir(tmp_path).manifest.read_text())["seeds"]["training"] == 0
 
 
+def test_reproduce_refuses_another_profile_or_dataset_in_a_run_folder(tmp_path, monkeypatch, capsys):
+    """A run folder holds one run: another profile or dataset into it is refused in one line (its models,
+    evaluations and tables would be the earlier run's, labelled as this one's), unless --fresh."""
+    import papermill
+    monkeypatch.setattr(papermill, "execute_notebook", lambda nb, out, **kw: None)
+    out = ["--only", "05", "--out", str(tmp_path)]
+    assert cli.main(["reproduce", "--profile", "ci", "--dataset", "procedural"] + out) == 0
+    assert cli.main(["reproduce", "--profile", "quick", "--dataset", "procedural"] + out) == 2
+    err = capsys.readouterr().err
+    assert "holds a run of profile ci, not quick" in err and err.count("\n") == 1
+    assert cli.main(["reproduce", "--profile", "quick", "--dataset", "procedural", "--fresh"] + out) == 0
+    assert json.loads(RunDir(tmp_path).manifest.read_text())["profile"] == "quick"
+
+
 def test_every_notebook_takes_the_training_seed_into_its_run():
     for nb in sorted((config.REPO_ROOT / "notebooks").glob("0*.ipynb")):
         cells = [c for c in json.loads(nb.read_text())["cells"] if c["cell_type"] == "code"]

@@ -237,6 +237,10 @@ def per_query(metrics: dict, keys: list[tuple]) -> pd.DataFrame:
     names a query the file lacks."""
     q = pd.DataFrame(metrics["per_query"])
     q.index = pd.MultiIndex.from_arrays([q["class"], q["object"], q["view"]])
+    missing = [k for k in keys if k not in q.index]
+    if missing:
+        raise KeyError(f"{len(missing)} of {len(keys)} queries are not in the {metrics.get('method')} metrics file "
+                       f"({len(q)} queries), e.g. {missing[0]}: it was made on other objects or views")
     return q.loc[keys].reset_index(drop=True)
 
 

@@ -32,6 +32,7 @@ COMMAND = "python -m hbeo report --completion-decomposition {run}"
 def write_decomposition(run, progress: bool = True) -> list:
     """Compute and write ``NAME.csv``, ``NAME.md`` and the figure ``NAME.png`` in ``run``; returns their paths."""
     from hbeo.evaluation.decompose import collect, decomposition
+    from hbeo.evaluation.protocol import eval_plan
     from hbeo.model.inference import HBEO
     from hbeo.run import load_dataset
     run = RunDir.of(run)
@@ -43,8 +44,10 @@ def write_decomposition(run, progress: bool = True) -> list:
     h = evals["hbeo"]
     ds = load_dataset(h["dataset"], model.settings.profile or "cpu")
     views, seed = int(h["views"]), int(h["seed"])
+    # the test objects the evaluation files scored (the profile's first objects of each class, or all)
+    per_class, _ = eval_plan(model.settings.profile or "cpu", "hbeo", "3dof")
     val = collect(model, ds, "val", views, seed, progress=progress)
-    test = collect(model, ds, "test", views, seed, progress=progress)
+    test = collect(model, ds, "test", views, seed, per_class=per_class, progress=progress)
     table, _ = decomposition(model, test, val, evals)
     csv, md = run.table(NAME), run.table(NAME, "md")
     atomic_text(csv, table.to_csv(index=False, float_format="%.6g"))

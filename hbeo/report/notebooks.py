@@ -81,7 +81,7 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     nbs = notebooks(only)                    # an unknown --only fails before anything is opened
     run = preflight(profile, dataset, out_dir, training_seed).dir
     if not fresh:
-        check_training_seed(run, training_seed)
+        check_run_folder(run, profile, dataset, training_seed)
     params = {"profile": profile, "dataset": dataset, "out_dir": str(run.path)}
     if training_seed:
         params["training_seed"] = training_seed
@@ -113,29 +113,39 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     return done
 
 
-def check_training_seed(run, training_seed: int) -> None:
-    """HBEOError when the manifest of the run folder ``run`` records another training seed than
-    ``training_seed``: its models would be of two seeds (a folder without a manifest takes any)."""
+def check_run_folder(run, profile: str, dataset: str, training_seed: int) -> None:
+    """HBEOError when the manifest of the run folder ``run`` records another profile, dataset or training seed
+    than asked: its models, evaluations and tables would mix two runs' (a folder without a manifest takes any)."""
     import json
     from hbeo.errors import HBEOError
     run = RunDir.of(run)
     if not run.manifest.is_file():
         return
-    recorded = (json.loads(run.manifest.read_text()).get("seeds") or {}).get("training", 0)
+    m = json.loads(run.manifest.read_text())
+    recorded = (m.get("seeds") or {}).get("training", 0)
     if recorded != training_seed:
         raise HBEOError(f"{run.manifest}: the run's models were trained with training seed {recorded}, not "
                         f"{training_seed}; pass --seed {recorded}, or --fresh to train them all again, or another --out")
+    for what, asked, option in (("profile", profile, "--profile"), ("dataset", dataset, "--dataset")):
+        if m.get(what) not in (None, asked):
+            raise HBEOError(f"{run.manifest}: this run folder holds a run of {what} {m[what]}, not {asked}; pass "
+                            f"{option} {m[what]}, or --fresh to start it again with {asked}, or another --out")
 
 
 def clear_products(run) -> list[Path]:
-    """Remove what a run trained or evaluated (model and baseline files, training folders with their
-    checkpoints, the protocol's metrics files); grids, subspace and rendered sets stay (they are checked
-    against their settings and rebuilt when stale). Returns the removed paths."""
+    """Remove what a run trained, evaluated or reported (model and baseline files, training folders with their
+    checkpoints, the protocol's metrics files, the executed notebooks with their tables and figures
+    (``NN_*``), ``REPRODUCTION.md`` and the book), so that nothing of an earlier run is left looking like this
+    one's if it stops midway; grids, subspace and rendered sets stay (they are checked against their settings
+    and rebuilt when stale). Returns the removed paths."""
+    import re
     import shutil
     from hbeo.evaluation.protocol import EVALUATIONS
     run = RunDir.of(run)
+    made = [p for p in sorted(run.path.iterdir()) if re.match(r"\d\d_", p.name)] if run.path.is_dir() else []
     gone = [*run.model_files(), *[run.baseline(m) for m in ("beo", "icp", "voxcnn")],
-            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.training_dirs()]
+            *[run.evaluation(m, p) for m, p in EVALUATIONS], *run.training_dirs(), *made,
+            run.path / "REPRODUCTION.md", run.path / "book"]
     out = []
     for p in gone:
         if p.is_dir():
