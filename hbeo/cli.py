@@ -392,9 +392,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="result JSON")
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
     p.add_argument("--face-object", action="store_true",
-                   help="turn the view to look straight at the object first, as a model trained with --recenter does "
-                        "(for an object far off the optical axis of a model trained without it; on views near the "
-                        "axis it cost that model class accuracy: docs/your-depth-image.md)")
+                   help="turn the view toward the object's estimated centre first, as far as the model needs "
+                        "(two passes; for an object off the optical axis of a model trained without --recenter; "
+                        "docs/your-depth-image.md)")
     _add_verify(p)
     _add_prior(p)
     _add_ensemble(p)

@@ -364,14 +364,15 @@ def test_an_object_far_off_the_axis_is_low_confidence_for_a_model_trained_withou
     far = model.predict(blob(u_far), K)
     assert far.low_confidence[0] and any("off the optical axis" in w for w in far.warnings[0])
     assert np.array_equal(far.view_rotation[0], np.eye(3))
-    # predict --face-object: the view turned to the object (rotation Q about the camera's y axis), no warning
+    # predict --face-object: the view turned toward the object, by the part of its offset beyond the training
+    # shift (rotation Q about the camera's y axis), no warning
     from hbeo.model.answer import predict_file
     np.save(tmp_path / "far.npy", blob(u_far))
     a = predict_file(trained / "model.hbeo", tmp_path / "far.npy", f"{K.fx},{K.fy},{K.cx},{K.cy}",
                      face_object=True)
     Q = a.prediction.view_rotation[0]
     assert a.extra["face_object"] and not any("off the optical axis" in w for w in a.warnings)
-    assert Q[0, 2] > 2 * shift and np.allclose(Q @ Q.T, np.eye(3))       # +z of the view onto the object's centre
+    assert Q[0, 2] > shift and np.allclose(Q @ Q.T, np.eye(3))           # +z of the view toward the object
 
 
 def test_notebook_08_loads_a_model_that_faces_the_object_as_predict_does(trained, tmp_path):
@@ -382,11 +383,11 @@ def test_notebook_08_loads_a_model_that_faces_the_object_as_predict_does(trained
     from hbeo.model.inference import HBEO
     plain, path = yourdepth.load_model(None, trained / "model.hbeo")
     faced, _ = yourdepth.load_model(None, trained / "model.hbeo", face_object=True)
-    assert path == trained / "model.hbeo" and not plain.recenters and faced.recenters
+    assert path == trained / "model.hbeo" and not plain.face_object and faced.face_object
     assert faced.settings == plain.settings and not faced.settings.recenter
     assert faced.answer_settings() == {**plain.answer_settings(), "face_object": True}
     assert list(plain.answer_settings()["classes"]) == list(plain.classes)
-    assert not HBEO.load(faced.save(tmp_path / "faced.hbeo")).recenters       # the trained setting is saved
+    assert not HBEO.load(faced.save(tmp_path / "faced.hbeo")).face_object       # the trained setting is saved
     with pytest.raises(ValueError, match="face_object must be True or False"):
         faced.set_face_object("yes")
-    assert not faced.set_face_object(False).recenters
+    assert not faced.set_face_object(False).face_object

@@ -30,6 +30,7 @@ from hbeo.limits import MAX_ROLLS, ROLL_BATCH, check_rolls, one_blas_thread
 from hbeo.model.modelfile import ModelSettings, read_model, write_model
 from hbeo.model.network import HBEONet, NetConfig, bin_cosines
 from hbeo.model.preprocess import View, to_model_view
+from hbeo.model.facing import MEDIAN, PLAIN, aims
 from hbeo.model.viewcheck import check_view
 from hbeo.subspace.basis import ObjectSubspace
 
@@ -40,6 +41,13 @@ PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 
 def _finite(x) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _batch(depth, mask) -> tuple:
+    """(B, H, W) depth and a list of B masks (None each without ``mask``) from one image or a batch."""
+    depth = np.asarray(depth)
+    batch = depth[None] if depth.ndim == 2 else depth
+    return batch, [None] * len(batch) if mask is None else (np.asarray(mask)[None] if np.ndim(mask) == 2 else mask)
 
 
 def _build_net(cfg: dict) -> HBEONet:
@@ -161,24 +169,24 @@ class HBEO:
         return self
 
     def set_face_object(self, face: bool) -> "HBEO":
-        """Turn every view to look straight at the object before the network sees it (as a model trained with
-        ``recenter`` does, :mod:`hbeo.model.preprocess`), for a model trained without it; returns self. The
-        model's ``settings`` keep what it was trained with (``predict --face-object``)."""
+        """Turn each view toward the object's estimated centre before the network answers it, as far as the model
+        needs (:mod:`hbeo.model.facing`: two passes), for a model trained without ``recenter`` and an object off the
+        optical axis; returns self. The model's ``settings`` keep what it was trained with (``predict
+        --face-object``)."""
         if not isinstance(face, (bool, np.bool_)):
             raise ValueError(f"face_object must be True or False, got {face!r}")
         self.face_object = bool(face)
         return self
 
-    @property
-    def recenters(self) -> bool:
-        """Whether :meth:`predict` turns each view to the object: trained so, or :meth:`set_face_object`."""
-        return bool(self.settings.recenter or self.face_object)
-
-    def view(self, depth, intrinsics: Intrinsics, mask=None) -> View:
-        """One depth image (H, W) metres with its ``intrinsics`` (and mask) in the model's camera, as
-        :meth:`predict` gives it to the network (:func:`hbeo.model.preprocess.to_model_view`)."""
-        return to_model_view(depth, intrinsics, self.intrinsics, mask, recenter=self.recenters,
-                             ref_distance=self.settings.ref_distance)
+    def view(self, depth, intrinsics: Intrinsics, mask=None, aim=None) -> View:
+        """One depth image (H, W) metres with its ``intrinsics`` (and mask) in the model's camera, as :meth:`predict`
+        gives it to the network (:func:`hbeo.model.preprocess.to_model_view`). ``aim``: None (the model's own
+        setting), ``"plain"``, ``"median"`` or a direction (3,) (:mod:`hbeo.model.facing`; a prediction's Q: Q[:, 2])."""
+        aim = (MEDIAN if self.settings.recenter else PLAIN) if aim is None else aim
+        turned = not (isinstance(aim, str) and aim == PLAIN)
+        return to_model_view(depth, intrinsics, self.intrinsics, mask, recenter=turned,
+                             ref_distance=self.settings.ref_distance,
+                             toward=None if isinstance(aim, str) else np.asarray(aim, np.float64))
 
     def answer_settings(self) -> dict:
         """What an answer's JSON records of how this model answered beside its class, pose and shape: the
@@ -400,9 +408,12 @@ class HBEO:
         """
         t0 = time.perf_counter()                   # the timing includes setting the limit (~25 us)
         with one_blas_thread():
-            return self._predict(depth, intrinsics, mask, rolls, t0)
+            if not self.face_object or self.settings.recenter:
+                return self._predict(depth, intrinsics, mask, rolls, t0)
+            first = self._predict(depth, intrinsics, mask, rolls, t0, MEDIAN)      # two passes (facing)
+            return self._predict(depth, intrinsics, mask, rolls, t0, aims(self, *_batch(depth, mask), intrinsics, first))
 
-    def _predict(self, depth, intrinsics: Intrinsics, mask, rolls: int, t0: float) -> Prediction:
+    def _predict(self, depth, intrinsics: Intrinsics, mask, rolls: int, t0: float, aim=None) -> Prediction:
         rolls = check_rolls(rolls, "rolls")      # a positive integer, at most MAX_ROLLS
         if rolls > 1 and self.net.cfg.rotation != "bins":
             raise ValueError(f"rolls > 1 needs a rotation-bins model; this one regresses {self.net.cfg.rotation}")
@@ -411,12 +422,13 @@ class HBEO:
         depth = np.asarray(depth)
         if depth.ndim not in (2, 3) or depth.size == 0:
             raise ValueError(f"depth must be one image (H, W) or a batch (B, H, W) with pixels, got shape {depth.shape}")
-        batch = depth[None] if depth.ndim == 2 else depth
-        masks = [None] * len(batch) if mask is None else (np.asarray(mask)[None] if np.ndim(mask) == 2 else mask)
+        batch, masks = _batch(depth, mask)
         if len(masks) != len(batch):
             raise ValueError(f"{len(masks)} masks for {len(batch)} depth images")
-        views = [self.view(d, intrinsics, m) for d, m in zip(batch, masks)]
-        warns = [check_view(v, self.intrinsics, self.settings, self.recenters, i if len(views) > 1 else None)
+        aim = [aim] * len(batch) if aim is None or isinstance(aim, str) else aim      # one per image
+        views = [self.view(d, intrinsics, m, a) for d, m, a in zip(batch, masks, aim)]
+        turned = self.settings.recenter or self.face_object
+        warns = [check_view(v, self.intrinsics, self.settings, turned, i if len(views) > 1 else None)
                  for i, v in enumerate(views)]
         x0 = np.stack([v.depth for v in views])
         angles = [2 * math.pi * k / rolls for k in range(rolls)]

@@ -87,8 +87,10 @@ def check_depth(depth, mask=None, name: str = "depth") -> np.ndarray:
 
 
 def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, recenter: bool = True,
-                  ref_distance: float | None = None) -> View:
-    """Resample a (masked) depth image (H, W), metres, into the model's camera; see the module doc."""
+                  ref_distance: float | None = None, toward=None) -> View:
+    """Resample a (masked) depth image (H, W), metres, into the model's camera; see the module doc. ``toward``
+    (3,), user camera frame, with ``recenter``: the point the virtual camera turns to instead of the observed
+    points' median (e.g. an estimate of the object's centre, which the visible surface's median is not)."""
     d = check_depth(depth, mask)
     if d.shape != (K_user.height, K_user.width):
         raise ValueError(f"depth image is {d.shape[1]}x{d.shape[0]} but the intrinsics are for "
@@ -96,7 +98,8 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     pts, _ = backproject(d, K_user)
     center = np.median(pts, axis=0)
     if recenter:
-        Q = direction_to_matrix(center)        # virtual camera -> user camera: +z onto the centre
+        aim = center if toward is None else np.asarray(toward, np.float64)
+        Q = direction_to_matrix(aim)           # virtual camera -> user camera: +z onto the centre
         local = pts[:, :2] @ Q[:2, :2] + pts[:, 2:] * Q[2, :2]    # virtual frame, x and y only
         mid = np.median(local, axis=0)
     else:                                          # the virtual frame is the camera's
