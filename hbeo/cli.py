@@ -441,11 +441,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("new", help="new model file (may be OLD itself: replaced once the conversion checks out)")
     p = _command(sub, cmd_reproduce, "reproduce", help="run the numbered notebooks with papermill into results/")
     _dataset_arg(p, profile="quick")
-    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET, -seedS added for --seed S)")
+    p.add_argument("--out", help="output folder (default: results/PROFILE-DATASET, -seedS added for --seed S; a "
+                   "relative path is taken from the repository root)")
     p.add_argument("--seed", type=NONNEG, default=0, help="training seed of every model the run trains (HBEONet, "
                    "the 3-D CNN); data, renderings and test views keep seed 0, so seeds score the same images (0)")
     p.add_argument("--only", nargs="*", help="notebook name prefixes to run (default: all)")
-    p.add_argument("--fresh", action="store_true", help="first remove the run's models, baselines and metrics")
+    p.add_argument("--fresh", action="store_true", help="first remove the run's models, baselines, metrics, "
+                   "notebooks, tables, figures and report (make reproduce does; without it, what the folder holds is "
+                   "read and an interrupted run goes on: make reproduce RESUME=1)")
     p = _command(sub, cmd_report, "report", help="write RUN/REPRODUCTION.md (reported vs. reproduced) from a finished run")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--run", help="run folder, e.g. results/cpu-modelnet10-vox30")

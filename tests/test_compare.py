@@ -57,3 +57,21 @@ def test_the_script_exits_by_the_verdict(tmp_path):
     assert r.returncode == 1 and "accuracy" in r.stdout
     r = subprocess.run(script + [str(a), str(tmp_path / "nothing")], capture_output=True, text=True)
     assert r.returncode == 2 and "nothing: not a run folder" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_speed_claims_measured_cells_and_the_run_path_are_not_differences(tmp_path):
+    """Two runs of one command: a claim about speed states measured times (and may flip its verdict with them);
+    reports name their own run folder. Neither is a difference; the claim's accuracy rows still are."""
+    head = "claim (paper),HBEO played by,ours (95 % CI),contrast (claim: < 0),pairs,objects,verdict\n"
+    speed = '"HBEO is faster than BEO (100x)",HBEO,"HBEO: {h} ms; BEO: 912 [867, 987] ms","{c}",50,50,{v}\n'
+    acc = 'HBEO classifies better,HBEO,"HBEO: 19.3 [17.0, 21.5] % error","{a}",1500,500,fails\n'
+    for name, h, c, v, a in (("a", "5.47 [5.12, 5.74]", "-3.65 [-4.61, -3.2]", "holds", "10.7 [8.3, 13.1]"),
+                             ("b", "6.01 [5.5, 6.4]", "-2.9 [-3.3, 0.1]", "inconclusive", "10.7 [8.3, 13.1]"),
+                             ("c", "5.47 [5.12, 5.74]", "-3.65 [-4.61, -3.2]", "holds", "10.8 [8.3, 13.1]")):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "06_claims.csv").write_text(head + speed.format(h=h, c=c, v=v) + acc.format(a=a))
+        (d / "REPRODUCTION.md").write_text(f"# Reproduction\n\nRun folder: `{d}`; see {d}/06_claims.md\n")
+    assert table_differences(tmp_path / "a", tmp_path / "b") == []
+    diffs = table_differences(tmp_path / "a", tmp_path / "c")
+    assert diffs == ["06_claims.csv: row 2, 'contrast (claim: < 0)': 10.7 [8.3, 13.1] vs 10.8 [8.3, 13.1]"], diffs

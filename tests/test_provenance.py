@@ -92,7 +92,8 @@ def test_notebook_06_runs_alone_in_an_empty_run_folder(tmp_path):
     assert run.model.exists() and run.table("06_claims").exists() and run.figure("06_pose_error").exists()
 
 
-@pytest.mark.parametrize("ename, says", [("DataError", "fix what it names, then run again with RESUME=1"),
+@pytest.mark.parametrize("ename, says", [("DataError", "fix what it names, then go on with `python -m hbeo reproduce "
+                                                      "--profile ci --dataset procedural --out "),
                                          ("KeyError", "is a bug in hbeo")])
 def test_a_failing_notebook_is_named_with_its_cell_error_copy_and_what_to_do(tmp_path, monkeypatch, capsys, ename,
                                                                             says):
@@ -112,3 +113,33 @@ def test_a_failing_notebook_is_named_with_its_cell_error_copy_and_what_to_do(tmp
     assert str(RunDir(out).notebook("07_runtime")) in msg and says in msg
     assert cli.main(["reproduce", "--profile", "ci", "--dataset", "procedural", "--out", str(out), "--only", "07"]) == 2
     assert capsys.readouterr().err.startswith(f"error: notebook 07_runtime stopped in cell 4: {ename}")
+
+
+def test_the_resume_command_is_the_one_for_the_run_folder(tmp_path, monkeypatch):
+    monkeypatch.setenv("HBEO_RESULTS", str(tmp_path))
+    assert notebooks.resume_command(tmp_path / "ci-procedural", "ci", "procedural", 0) == \
+        "make reproduce PROFILE=ci DATASET=procedural RESUME=1"
+    assert notebooks.resume_command(tmp_path / "ci-procedural-seed2", "ci", "procedural", 2) == \
+        "make reproduce PROFILE=ci DATASET=procedural SEED=2 RESUME=1"
+    assert notebooks.resume_command(tmp_path / "x", "ci", "procedural", 2) == \
+        f"python -m hbeo reproduce --profile ci --dataset procedural --seed 2 --out {tmp_path / 'x'}"
+
+
+def test_an_interrupted_notebook_is_set_aside_and_the_way_on_is_printed(tmp_path, monkeypatch, capsys):
+    """Ctrl-C in a notebook: its executed copy so far is renamed ``NN_name.partial.ipynb`` (not left looking
+    finished under its own name), the manifest does not list it, and the command that goes on is printed."""
+    import json
+    import papermill as pm
+
+    def interrupted(nb, target, **kw):
+        Path(target).write_text("{}")                  # papermill writes the copy as it goes
+        raise KeyboardInterrupt
+    monkeypatch.setattr(pm, "execute_notebook", interrupted)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        notebooks.run_notebooks("ci", "procedural", out, only=["04"])
+    run = RunDir(out)
+    assert not run.notebook("04_train").exists() and (out / "04_train.partial.ipynb").exists()
+    assert not run.manifest.exists() or "04_train" not in json.loads(run.manifest.read_text()).get("notebooks", {})
+    err = capsys.readouterr().err
+    assert "interrupted in 04_train" in err and f"--out {out}`" in err

@@ -7,7 +7,9 @@ kind of machine should agree in every cell except the ones that measure time on 
 ``ms/query``, ``images/s (this run)``, ``wall_s``, ``time_utc``...; the paper's own reported times,
 ``paper: mean (s)``, are not measured and are compared). In Markdown, the cells of a table's timing
 columns are dropped before comparing, and so is a prose line that states a measured time (``Reproduced
-on: ...``-style lines are compared, since they name the machine, not a time).
+on: ...``-style lines are compared, since they name the machine, not a time). A row that states a measured time
+per query in a cell (a claim about speed: ``5.47 [5.12, 5.74] ms``) has its figures, intervals and verdict
+compared as ``<time>``; the run folder's own path, which reports name, is compared as ``<run>``.
 
 :func:`table_differences` lists what differs (files one run lacks, rows, cells), with the file and the
 column; ``scripts/compare_runs.py A B`` prints the list and exits 1 when it is not empty.
@@ -25,8 +27,20 @@ from pathlib import Path
 TIMING = re.compile(r"^(?!paper)(?:.*\((?:s|ms)\)|.*\bms(?:\b|_).*|.*images/s.*|.*wall.*|time_utc|.*seconds.*)$", re.I)
 #: A Markdown prose line that states a measured time (compared with its figures removed).
 _TIME_IN_PROSE = re.compile(r"\d[\d.,]*\s*(?:min|s|ms|h)\b")
+#: A cell that states a measured time per query (``5.47 [5.12, 5.74] ms``): its row is a timing row, whose numbers
+#: and verdict (a claim about speed) are measured on the machine and compared as ``<time>``
+_TIME_CELL = re.compile(r"[\d\]]\s*ms\b")
+#: a timing row's cells that are measured: a figure, an interval, a verdict
+_MEASURED_CELL = re.compile(r"^(?:-?[\d.,]+(?:\s*\[[-\d., ]+\])?|holds|fails|inconclusive)$")
 #: The tables of a run folder.
 PATTERNS = ("*.csv", "*.md")
+
+
+def _timing_row(cells: list[str]) -> list[str]:
+    """A table row with its measured cells as ``<time>`` when it is a timing row (:data:`_TIME_CELL`)."""
+    if not any(_TIME_CELL.search(c) for c in cells):
+        return cells
+    return ["<time>" if _TIME_CELL.search(c) or _MEASURED_CELL.match(c.strip()) else c for c in cells]
 
 
 def is_timing(header: str) -> bool:
@@ -39,7 +53,7 @@ def _csv_rows(text: str) -> list[list[str]]:
     if not rows:
         return rows
     keep = [i for i, h in enumerate(rows[0]) if not is_timing(h)]
-    return [[r[i] if i < len(r) else "" for i in keep] for r in rows]
+    return [_timing_row([r[i] if i < len(r) else "" for i in keep]) for r in rows]
 
 
 def _cells(line: str) -> list[str]:
@@ -54,15 +68,23 @@ def _md_lines(text: str) -> list[str]:
             cells = _cells(line)
             if keep is None:                   # a table's header row
                 keep = [i for i, h in enumerate(cells) if not is_timing(h)]
-            out.append(" | ".join(cells[i] for i in keep if i < len(cells)))
+            out.append(" | ".join(_timing_row([cells[i] for i in keep if i < len(cells)])))
             continue
         keep = None
         out.append(_TIME_IN_PROSE.sub("<time>", line) if re.search(r"wall|took|time", line, re.I) else line)
     return out
 
 
-def _lines(path: Path) -> list:
+def _lines(path: Path, run: Path) -> list:
+    """The file's rows (CSV) or lines (Markdown), with the run folder's own path, as the reports write it
+    (relative to the repository or absolute), replaced by ``<run>``: two runs in two folders name theirs."""
+    import os
     text = path.read_text(encoding="utf-8")
+    here = run.resolve()
+    roots = [Path(__file__).resolve().parents[2]] + [p for p in here.parents if (p / "hbeo").is_dir()]   # checkouts
+    forms = {str(here), str(run)} | {os.path.relpath(here, r) for r in roots}
+    for form in sorted(forms, key=len, reverse=True):
+        text = text.replace(form, "<run>")
     return _csv_rows(text) if path.suffix == ".csv" else _md_lines(text)
 
 
@@ -78,7 +100,7 @@ def table_differences(a, b, patterns=PATTERNS) -> list[str]:
     na, nb = names(a), names(b)
     out = [f"{n}: only in {a}" for n in sorted(na - nb)] + [f"{n}: only in {b}" for n in sorted(nb - na)]
     for name in sorted(na & nb):
-        ra, rb = _lines(a / name), _lines(b / name)
+        ra, rb = _lines(a / name, a), _lines(b / name, b)
         if len(ra) != len(rb):
             out.append(f"{name}: {len(ra)} rows in {a}, {len(rb)} in {b}")
         header = ra[0] if ra and isinstance(ra[0], list) else None

@@ -11,6 +11,7 @@ May import: foundation, data, run, and the other report modules (papermill and t
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -46,12 +47,11 @@ class NotebookFailed(HBEOError):
     executed copy (with the whole traceback) is, and what to do next: fix the input it names and go on with
     ``RESUME=1`` (finished stages are skipped), or report an error that is not about the input as a bug."""
 
-    def __init__(self, name: str, copy, cell, ename: str, evalue: str):
+    def __init__(self, name: str, copy, cell, ename: str, evalue: str, resume: str = "make reproduce ... RESUME=1"):
         self.name, self.copy, self.cell, self.ename, self.evalue = name, Path(copy), cell, ename, evalue
         if ename in INPUT_ERRORS:
-            then = ("fix what it names, then run again with RESUME=1 (`make reproduce ... RESUME=1`: what finished, "
-                    "grids, renderings, models and evaluations, is read, not made again; training resumes from its "
-                    "checkpoint)")
+            then = (f"fix what it names, then go on with `{resume}` (what finished, grids, renderings, models and "
+                    "evaluations, is read, not made again; training resumes from its checkpoint)")
         else:
             then = (f"an unexpected {ename} inside a notebook is a bug in hbeo; please report it with the command "
                     "and that copy on the project's issue tracker")
@@ -89,6 +89,7 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         for p in clear_products(run):
             print(f"[hbeo] fresh run: removed {p}", flush=True)
         write_manifest(run, profile, dataset, fresh=True, training_seed=training_seed)
+    resume = resume_command(run, profile, dataset, training_seed)
     done = []
     t_all = time.perf_counter()
     for k, nb in enumerate(nbs, 1):
@@ -101,7 +102,15 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
             try:
                 pm.execute_notebook(str(nb), str(target), cwd=str(NOTEBOOKS), parameters=params, progress_bar=False)
             except pm.PapermillExecutionError as err:
-                raise NotebookFailed(nb.stem, target, err.exec_count, err.ename, err.evalue) from None
+                raise NotebookFailed(nb.stem, target, err.exec_count, err.ename, err.evalue, resume) from None
+            except KeyboardInterrupt:
+                # the copy so far is no finished notebook: set it aside under a name that says so
+                partial = target.with_name(target.stem + ".partial.ipynb")
+                if target.exists():
+                    target.replace(partial)
+                print(f"\n[hbeo] interrupted in {nb.stem} (its copy so far: {partial}); go on with `{resume}`",
+                      file=sys.stderr, flush=True)
+                raise
         sec = time.perf_counter() - t0
         write_manifest(run, profile, dataset, {nb.stem: round(sec, 1)}, training_seed=training_seed)
         print(f"[hbeo {k}/{len(nbs)}] {nb.name} done in {sec / 60:.1f} min "
@@ -111,6 +120,17 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         for path in write_reports(run, profile, dataset):
             print(f"[hbeo] wrote {path}", flush=True)
     return done
+
+
+def resume_command(run, profile: str, dataset: str, training_seed: int) -> str:
+    """The command that goes on with the run in folder ``run`` (finished stages read, training from its
+    checkpoint): ``make reproduce ... RESUME=1`` for the folder ``make`` uses, else ``python -m hbeo reproduce ...
+    --out``."""
+    seed = f" SEED={training_seed}" if training_seed else ""
+    if RunDir.of(run).path.resolve() == config.run_path(profile, dataset, None, training_seed).resolve():
+        return f"make reproduce PROFILE={profile} DATASET={dataset}{seed} RESUME=1"
+    return (f"python -m hbeo reproduce --profile {profile} --dataset {dataset}"
+            + (f" --seed {training_seed}" if training_seed else "") + f" --out {RunDir.of(run).path}")
 
 
 def check_run_folder(run, profile: str, dataset: str, training_seed: int) -> None:
