@@ -87,3 +87,19 @@ def test_face_object_answers_the_second_pass_in_the_cameras_frame(tiny_model):
         np.testing.assert_allclose(faced.rotation[0], Q @ net.rotation[0], atol=1e-6)
         assert not np.allclose(faced.rotation, plain.rotation)
         assert faced.timing_ms["total"] > second.timing_ms["network"]
+
+
+def test_notebook_08_shows_the_view_the_network_answered(tiny_model):
+    """yourdepth.network_aim: the view of a face_object answer is its turned one (the same Q), an unturned answer's
+    is the frame as it is, and without an answer the model's own setting."""
+    from conftest import box_grids
+    from hbeo.lessons.yourdepth import network_aim
+    m = tiny_model({"recenter": False, "render": {"shift": SHIFT}}, mean_grids=box_grids()).set_face_object(True)
+    Km = m.intrinsics
+    d = shape_depth(surface_points(_box(), 1.0), np.eye(3), np.array([3 * SHIFT * 1.7, 0.01, 1.7]), Km)
+    pred = m.predict(d, Km)
+    Q = pred.view_rotation[0]
+    assert not np.allclose(Q, np.eye(3))
+    np.testing.assert_allclose(m.view(d, Km, aim=network_aim(m, pred)).Q, Q, atol=1e-12)
+    plain = m.set_face_object(False).predict(d, Km)
+    assert network_aim(m, plain) == "plain" and network_aim(m, None) is None

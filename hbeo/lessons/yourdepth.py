@@ -232,7 +232,7 @@ def checks(model, frame: Frame, pred) -> pd.DataFrame:
     med = float(np.median(d[d > 0]))
     fov = math.degrees(2 * math.atan(K.width / (2 * K.fx)))
     fov_m = math.degrees(2 * math.atan(Km.width / (2 * Km.fx)))
-    view = model.view(frame.depth, K, frame.mask)
+    view = model.view(frame.depth, K, frame.mask, aim=network_aim(model, pred))
     lo, hi = training_distances(model)
     n_obj = int((d > 0).sum())
     pts, _ = backproject(d, K)
@@ -266,11 +266,22 @@ def checks(model, frame: Frame, pred) -> pd.DataFrame:
 
 # ----------------------------------------------------------------------------- figures
 
-def input_figure(model, frame: Frame):
+def network_aim(model, pred=None):
+    """The ``aim`` of :meth:`HBEO.view` that gives the view the network answered for ``pred`` (its
+    ``view_rotation``), or the model's own setting without ``pred``: with ``face_object`` the turn depends on a first
+    answer (:mod:`hbeo.model.facing`)."""
+    if pred is None or pred.view_rotation is None:
+        return None
+    Q = np.asarray(pred.view_rotation[0])
+    return "plain" if np.allclose(Q, np.eye(3)) and not model.settings.recenter else Q[:, 2]
+
+
+def input_figure(model, frame: Frame, pred=None):
     """The depth image (metres, colour bar), its mask, and the network's input (the frame resampled into the
-    model's camera as :meth:`HBEO.predict` gives it to the network, :meth:`HBEO.view`)."""
+    model's camera as :meth:`HBEO.predict` gives it to the network, :meth:`HBEO.view`; with ``face_object``, the
+    view of ``pred``, or without it the frame unturned)."""
     import matplotlib.pyplot as plt
-    view = model.view(frame.depth, frame.intrinsics, frame.mask)
+    view = model.view(frame.depth, frame.intrinsics, frame.mask, aim=network_aim(model, pred))
     fig, ax = plt.subplots(1, 3, figsize=(12, 3.4), gridspec_kw={"width_ratios": [1.25, 1, 1]})
     d = np.ma.masked_less_equal(frame.depth, 0)
     im = ax[0].imshow(d, cmap="viridis_r")
