@@ -128,8 +128,9 @@ def predict_file(model_path, depth_path, intrinsics: str, mask_path=None, depth_
     the answer's ``ensemble`` names them). ``mirror``: the class answer averaged with the mirrored image's
     (:meth:`hbeo.model.inference.HBEO.set_mirror`; the answer's ``mirror`` says so). ``completion``: the completion
     rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty; another than ``paper`` is
-    named in the answer's ``completion``). ``face_object``: the view is turned to look straight at the object
-    (:meth:`hbeo.model.inference.HBEO.set_face_object`; the answer's ``face_object`` says so)."""
+    named in the answer's ``completion``). ``face_object``: the view is turned toward the object's estimated centre
+    as far as the model needs (:meth:`hbeo.model.inference.HBEO.set_face_object`; the answer's ``face_object`` says
+    so)."""
     from hbeo.model.depthfile import parse_intrinsics, read_depth, read_mask
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_files, check_outputs, json_text
