@@ -116,12 +116,14 @@ def test_a_failing_notebook_is_named_with_its_cell_error_copy_and_what_to_do(tmp
 
 
 def test_the_resume_command_is_the_one_for_the_run_folder(tmp_path, monkeypatch):
+    import functools
     monkeypatch.setenv("HBEO_RESULTS", str(tmp_path))
-    assert notebooks.resume_command(tmp_path / "ci-procedural", "ci", "procedural", 0) == \
+    resume_command = functools.partial(provenance.reproduce_command, resume=True)
+    assert resume_command(tmp_path / "ci-procedural", "ci", "procedural", 0) == \
         "make reproduce PROFILE=ci DATASET=procedural RESUME=1"
-    assert notebooks.resume_command(tmp_path / "ci-procedural-seed2", "ci", "procedural", 2) == \
+    assert resume_command(tmp_path / "ci-procedural-seed2", "ci", "procedural", 2) == \
         "make reproduce PROFILE=ci DATASET=procedural SEED=2 RESUME=1"
-    assert notebooks.resume_command(tmp_path / "x", "ci", "procedural", 2) == \
+    assert resume_command(tmp_path / "x", "ci", "procedural", 2) == \
         f"python -m hbeo reproduce --profile ci --dataset procedural --seed 2 --out {tmp_path / 'x'}"
 
 

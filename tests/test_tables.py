@@ -159,14 +159,14 @@ def test_the_resolution_line_comes_from_the_studys_files_or_is_absent(tmp_path):
 def test_the_report_names_the_command_that_makes_its_run_folder(tmp_path, monkeypatch):
     """REPRODUCTION.md's command: make reproduce (with SEED for a seed other than 0) for the default folder, else
     reproduce --out with the folder; its first paragraph names the training seed."""
-    from hbeo.report.reproduction_md import reproduce_command
+    from hbeo.report.provenance import reproduce_command
     from hbeo.rundir import RunDir
     monkeypatch.setenv("HBEO_RESULTS", str(tmp_path))
-    man = {"profile": "cpu", "dataset": "modelnet10-vox30", "seeds": {"training": 1}}
+    how = ("cpu", "modelnet10-vox30")
     seed1 = RunDir(tmp_path / "cpu-modelnet10-vox30-seed1")
-    assert reproduce_command(seed1, man) == "make reproduce PROFILE=cpu DATASET=modelnet10-vox30 SEED=1"
-    assert reproduce_command(RunDir(tmp_path / "cpu-modelnet10-vox30"), {**man, "seeds": {"training": 0}}) == \
+    assert reproduce_command(seed1, *how, 1) == "make reproduce PROFILE=cpu DATASET=modelnet10-vox30 SEED=1"
+    assert reproduce_command(RunDir(tmp_path / "cpu-modelnet10-vox30"), *how, 0) == \
         "make reproduce PROFILE=cpu DATASET=modelnet10-vox30"
-    other = reproduce_command(RunDir(tmp_path / "elsewhere"), man)
+    other = reproduce_command(RunDir(tmp_path / "elsewhere"), *how, 1)
     assert other.startswith("python -m hbeo reproduce --profile cpu --dataset modelnet10-vox30 --seed 1 --fresh --out ")
     assert other.endswith("elsewhere")

@@ -19,7 +19,7 @@ from pathlib import Path
 from hbeo import config
 from hbeo.errors import HBEOError
 from hbeo.progress import ProgressEcho
-from hbeo.report.provenance import write_manifest
+from hbeo.report.provenance import reproduce_command, write_manifest
 from hbeo.rundir import RunDir
 
 NOTEBOOKS = config.REPO_ROOT / "notebooks"
@@ -89,7 +89,7 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         for p in clear_products(run):
             print(f"[hbeo] fresh run: removed {p}", flush=True)
         write_manifest(run, profile, dataset, fresh=True, training_seed=training_seed)
-    resume = resume_command(run, profile, dataset, training_seed)
+    resume = reproduce_command(run, profile, dataset, training_seed, resume=True)
     done = []
     t_all = time.perf_counter()
     for k, nb in enumerate(nbs, 1):
@@ -120,17 +120,6 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
         for path in write_reports(run, profile, dataset):
             print(f"[hbeo] wrote {path}", flush=True)
     return done
-
-
-def resume_command(run, profile: str, dataset: str, training_seed: int) -> str:
-    """The command that goes on with the run in folder ``run`` (finished stages read, training from its
-    checkpoint): ``make reproduce ... RESUME=1`` for the folder ``make`` uses, else ``python -m hbeo reproduce ...
-    --out``."""
-    seed = f" SEED={training_seed}" if training_seed else ""
-    if RunDir.of(run).path.resolve() == config.run_path(profile, dataset, None, training_seed).resolve():
-        return f"make reproduce PROFILE={profile} DATASET={dataset}{seed} RESUME=1"
-    return (f"python -m hbeo reproduce --profile {profile} --dataset {dataset}"
-            + (f" --seed {training_seed}" if training_seed else "") + f" --out {RunDir.of(run).path}")
 
 
 def check_run_folder(run, profile: str, dataset: str, training_seed: int) -> None:

@@ -148,3 +148,18 @@ def commit_line(man: dict) -> str:
     where = (f"commit `{commits[0][:10]}`" if len(commits) == 1
              else "commits " + ", ".join(f"`{c[:10]}`" for c in commits) + " (notebooks at different commits)")
     return f"{where}, {'clean tree' if clean else 'uncommitted changes outside results/'}"
+
+
+def reproduce_command(run, profile: str, dataset: str, training_seed: int = 0, resume: bool = False) -> str:
+    """The command that makes the run folder ``run`` afresh, or with ``resume`` goes on with it (finished stages
+    read, training from its checkpoint): ``make reproduce PROFILE= DATASET=`` (``SEED=`` for a training seed other
+    than 0; ``RESUME=1``) where the folder is the one ``make`` uses, else ``python -m hbeo reproduce ... --out``
+    (``--fresh`` unless ``resume``) with the folder, relative to the repository root when inside it."""
+    path = Path(RunDir.of(run).path).resolve()
+    if path == config.run_path(profile, dataset, None, training_seed).resolve():
+        return (f"make reproduce PROFILE={profile} DATASET={dataset}" + (f" SEED={training_seed}" if training_seed else "")
+                + (" RESUME=1" if resume else ""))
+    root = Path(config.REPO_ROOT).resolve()
+    out = path.relative_to(root) if path.is_relative_to(root) else path
+    return (f"python -m hbeo reproduce --profile {profile} --dataset {dataset}"
+            + (f" --seed {training_seed}" if training_seed else "") + ("" if resume else " --fresh") + f" --out {out}")

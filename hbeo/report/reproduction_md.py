@@ -24,7 +24,7 @@ from pathlib import Path
 
 from hbeo import config
 from hbeo.report import completion_gap, readings, seeds, tables as T
-from hbeo.report.provenance import commit_line
+from hbeo.report.provenance import commit_line, reproduce_command
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -280,19 +280,6 @@ def check_finished_run(run) -> RunDir:
     return run
 
 
-def reproduce_command(run, man: dict) -> str:
-    """The command that makes the run folder ``run`` (its manifest ``man``): ``make reproduce`` with PROFILE,
-    DATASET and, for a training seed other than 0, SEED, where the folder is that command's; else ``python -m hbeo
-    reproduce ... --out`` with the folder."""
-    profile, dataset = man.get("profile"), man.get("dataset")
-    seed = int((man.get("seeds") or {}).get("training", 0))
-    if profile and dataset and Path(run.path).resolve() == config.run_path(profile, dataset, None, seed).resolve():
-        return f"make reproduce PROFILE={profile} DATASET={dataset}" + (f" SEED={seed}" if seed else "")
-    out = os.path.relpath(Path(run.path).resolve(), config.REPO_ROOT)
-    return (f"python -m hbeo reproduce --profile {profile} --dataset {dataset}" + (f" --seed {seed}" if seed else "")
-            + f" --fresh --out {out}")
-
-
 def write_reproduction(run, out=None) -> Path:
     """The run's ``REPRODUCTION.md`` (or ``out``, e.g. ``paper/REPRODUCTION.md``) from a finished run folder
     (a RunDir or a path; ``python -m hbeo report`` checks it first, :func:`check_finished_run`): the text of
@@ -315,8 +302,8 @@ def reproduction_text(run, out: Path) -> str:
         return f"![{alt}]({link(run.figure(name))})" if run.figure(name).exists() else f"*(missing: {name}.png)*"
 
     rel = link(run.path)
-    cmd = reproduce_command(run, man)
     seed = int((man.get("seeds") or {}).get("training", 0))
+    cmd = reproduce_command(run, man.get("profile"), man.get("dataset"), seed)
     lines = [
         "# Reproduction: reported vs. reproduced",
         "",
