@@ -19,6 +19,11 @@ PY     := $(VENV)/bin/python
 PROFILE ?= quick
 DATASET ?= procedural
 SEED   ?= 0
+# SEED read as a number, as reproduce reads it: SEED=01 and SEED=1 name one run folder
+override SEED := $(shell expr '$(SEED)' + 0 2>/dev/null)
+ifeq ($(filter-out -%,$(SEED)),)
+$(error SEED must be a whole number (0, 1, 2, ...))
+endif
 RUN    ?= results/$(PROFILE)-$(DATASET)$(if $(filter-out 0,$(SEED)),-seed$(SEED))
 NP2VENV ?= .venv-numpy2
 

@@ -130,6 +130,47 @@ def voxelize_to_file(profile, dataset: str, out, workers: int = 0, strict: bool 
     return res.report()
 
 
+#: The first line of the cell papermill injects after a notebook's ``parameters`` cell (its Python translator).
+PAPERMILL_HEADER = "# Parameters\n"
+
+
+def _assigned(source: str) -> set:
+    """The names a cell's top-level statements assign (nothing when it does not parse)."""
+    import ast
+    try:
+        tree = ast.parse(source)
+    except SyntaxError:
+        return set()
+    return {t.id for node in tree.body if isinstance(node, (ast.Assign, ast.AnnAssign))
+            for t in (node.targets if isinstance(node, ast.Assign) else [node.target]) if isinstance(t, ast.Name)}
+
+
+def check_notebook_parameters(history=None) -> None:
+    """Refuse a papermill parameter that the notebook's ``parameters`` cell does not name.
+
+    Papermill only warns of an unknown ``-p`` name, and the notebook then runs with the default of the name
+    it was meant to be (``-p epcohs 3`` trains the profile's epochs). ``history``: the cells the kernel
+    ran, in order (default: IPython's ``In``; outside IPython nothing is checked). The cell papermill
+    injected (:data:`PAPERMILL_HEADER`) is compared with the cells run before it; where none was
+    injected (nbval, JupyterLab, a script) this does nothing."""
+    if history is None:
+        ip = sys.modules.get("IPython")
+        shell = ip.get_ipython() if ip is not None else None
+        history = shell.user_ns.get("In", []) if shell is not None else []
+    import difflib
+    for i in range(len(history) - 1, 0, -1):
+        if history[i].startswith(PAPERMILL_HEADER):
+            declared = set().union(*map(_assigned, history[:i]))
+            unknown = sorted(_assigned(history[i]) - declared)
+            if declared and unknown:
+                near = [f"{u!r} (did you mean {m[0]!r}?)" if (m := difflib.get_close_matches(u, declared, 1)) else
+                        repr(u) for u in unknown]
+                raise ValueError(f"papermill parameter {', '.join(near)} is not one of this notebook's parameters "
+                                 f"({', '.join(sorted(_assigned(history[i - 1]) or declared))}); papermill only "
+                                 "warns of it and would run with the default instead: check the spelling of -p")
+            return
+
+
 @dataclass(frozen=True)
 class Run:
     """The run of ``profile`` (a :class:`hbeo.config.Profile`) on ``dataset`` (a loaded
@@ -149,9 +190,11 @@ class Run:
     def open(cls, profile, dataset: str, out=None, *, training_seed: int = 0, **dataset_kw) -> "Run":
         """Resolve ``profile`` (name or Profile), load ``dataset`` (name or folder; warnings printed once)
         and create the run folder ``out`` (default ``<results>/<profile>-<dataset>``, with ``-seed<S>``
-        for a ``training_seed`` S other than 0: :func:`hbeo.config.run_path`)."""
+        for a ``training_seed`` S other than 0: :func:`hbeo.config.run_path`). In a notebook run by
+        papermill, a ``-p`` name its parameters cell lacks is refused first (:func:`check_notebook_parameters`)."""
         if isinstance(training_seed, bool) or not isinstance(training_seed, int) or training_seed < 0:
             raise ValueError(f"training_seed must be a whole number >= 0, got {training_seed!r}")
+        check_notebook_parameters()
         prof = config.get_profile(profile)
         ds = load_dataset(dataset, prof, **dataset_kw)
         return cls(prof, ds, RunDir.for_run(prof.name, dataset, out, training_seed), str(dataset), training_seed)

@@ -127,3 +127,24 @@ def test_clean_results_refuses_where_git_cannot_tell_the_runs_apart(tmp_path):
     done = _make(inner)
     assert done.returncode != 0 and "nothing deleted" in done.stderr
     assert (inner / REF / "model.hbeo").exists()
+
+
+@needs_make
+@pytest.mark.parametrize("seed, folder", [("01", "-seed1"), ("1", "-seed1"), ("00", ""), ("08", "-seed8")])
+def test_make_reads_the_seed_as_a_number_as_reproduce_does(seed, folder):
+    """``make reproduce SEED=01`` writes where ``make book SEED=01`` reads (reproduce takes the seed as a number)."""
+    done = subprocess.run(["make", "-n", "reproduce", "book", f"SEED={seed}", "VENV=/nonexistent-venv"], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert [ln for ln in lines if " book " in ln][0].endswith(f"results/quick-procedural{folder}")
+    want = f" --seed {int(seed)}" if int(seed) else " --fresh"
+    assert [ln for ln in lines if " reproduce " in ln][0].endswith(want)
+
+
+@needs_make
+@pytest.mark.parametrize("seed", ["abc", "-1", ""])
+def test_make_refuses_a_seed_that_is_not_a_whole_number(seed):
+    done = subprocess.run(["make", "-n", "book", f"SEED={seed}", "VENV=/nonexistent-venv"], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert done.returncode != 0 and "SEED must be a whole number" in done.stderr

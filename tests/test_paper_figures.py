@@ -224,3 +224,10 @@ def test_the_completion_gallery_titles_an_empty_completion():
     titles = [a.get_title() for a in fig.axes]
     plt.close(fig)
     assert titles[2] == "HBEO: chair" and titles[3] == "BEO known pose: table\n(empty completion)"
+
+
+def test_the_verified_label_names_rolls_only_when_the_answers_averaged_rolls(evals):
+    ver = evals[1]
+    assert method.label({**ver, "rolls": 4}) == "HBEO + rolls + verify (3-DOF, ours)"
+    assert method.label({**ver, "rolls": 1}) == "HBEO + verify (3-DOF, ours)"     # a model without rotation bins
+    assert pf.row_key(method.label({**ver, "rolls": 1})) == figures.HBEO_VERIFY

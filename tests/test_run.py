@@ -99,3 +99,38 @@ def test_a_missing_baseline_is_fitted_in_a_folder_that_holds_only_the_committed_
     assert folder.subspace.exists() and folder.baseline("beo").is_file()
     with pytest.raises(ValueError, match="unknown method"):
         run.baseline("nope")
+
+
+# ------------------------------------------------------------------ papermill parameters
+
+PARAMS = 'profile = "ci"\ndataset = "procedural"\nepochs = None  # the profile\'s\n'
+
+
+def test_a_misspelt_papermill_parameter_is_refused_with_the_near_name():
+    from hbeo.run import check_notebook_parameters
+    history = ["", "%matplotlib inline", PARAMS, '# Parameters\nprofile = "cpu"\nepcohs = 3\n']
+    with pytest.raises(ValueError, match=r"'epcohs' \(did you mean 'epochs'\?\).*dataset, epochs, profile"):
+        check_notebook_parameters(history)
+    check_notebook_parameters(history[:3] + ['# Parameters\nprofile = "cpu"\nepochs = 3\n'])   # known names
+    check_notebook_parameters(history[:3])                          # not run by papermill: nothing to check
+    check_notebook_parameters(["", '# Parameters\nx = 1\n'])         # nothing run before it: not judged
+    check_notebook_parameters(history[:3] + ['# Parameters\nepochs = 3\n', "zz = 1",       # the last injection
+                                             'from hbeo.run import Run'])
+
+
+@pytest.mark.slow
+def test_papermill_stops_a_notebook_run_with_a_misspelt_parameter(tmp_path):
+    """Through papermill and a kernel, as a batch run meets it (the kernel's own cell history)."""
+    import nbformat
+    import papermill as pm
+    nb = nbformat.v4.new_notebook(metadata={"kernelspec": {"name": "python3", "language": "python",
+                                                          "display_name": "Python 3"}})
+    params = nbformat.v4.new_code_cell(PARAMS, metadata={"tags": ["parameters"]})
+    nb.cells = [params, nbformat.v4.new_code_cell("from hbeo.run import check_notebook_parameters\n"
+                                                  "check_notebook_parameters()\nprint('trained', epochs)")]
+    nbformat.write(nb, tmp_path / "in.ipynb")
+    pm.execute_notebook(tmp_path / "in.ipynb", tmp_path / "ok.ipynb", parameters={"epochs": 3}, progress_bar=False)
+    assert "trained 3" in (tmp_path / "ok.ipynb").read_text()
+    with pytest.raises(pm.PapermillExecutionError, match="did you mean 'epochs'"):
+        pm.execute_notebook(tmp_path / "in.ipynb", tmp_path / "bad.ipynb", parameters={"epcohs": 3},
+                            progress_bar=False)

@@ -46,9 +46,13 @@ LABELS = {("hbeo", "3dof"): "HBEO (3-DOF)", ("hbeo-verify", "3dof"): "HBEO + rol
 
 
 def label(metrics: dict) -> str:
-    """The display label of a metrics dict (``+ verify`` added when HBEO's answers were verified)."""
+    """The display label of a metrics dict (``+ verify`` added when HBEO's answers were verified;
+    ``rolls`` dropped from the verified setting's label when its metrics record one roll, as a model
+    without rotation bins answers)."""
     key = (metrics["method"], metrics["pose"])
     name = LABELS.get(key, f"{key[0]} ({key[1]})")
+    if metrics.get("rolls") == 1:
+        name = name.replace("+ rolls + verify", "+ verify")
     return name + (" + verify" if metrics.get("verify") and "verify" not in name else "")
 
 

@@ -32,7 +32,7 @@ import pandas as pd
 
 from hbeo import config
 from hbeo.evaluation import paired
-from hbeo.evaluation.method import LABELS
+from hbeo.evaluation.method import LABELS, label
 from hbeo.evaluation.protocol import EVALUATIONS, TABLE1
 from hbeo.render.poses import SAMPLER_HELP, SAMPLERS
 from hbeo.report import tables as T
@@ -146,7 +146,8 @@ def claims_table(readings: list[Reading], man: dict, run) -> pd.DataFrame:
     rows = []
     for p in T.PLAYERS:
         for i, c in enumerate(paired.CLAIMS):
-            row = {"claim (paper)": c.text, "HBEO played by": LABELS[p]}
+            ran = [r.evals[p] for r in shown if p in r.evals]
+            row = {"claim (paper)": c.text, "HBEO played by": label(ran[0]) if ran else LABELS[p]}
             for r in shown:
                 cl = judged[r.sampler]
                 if (p[0], i) in cl.index:
