@@ -7,6 +7,9 @@ Every module imports :func:`tqdm` from here instead of ``tqdm.auto``. In an inte
 bar writes its text form to that file instead (append mode, at most every :data:`MININTERVAL_S` seconds) and
 the executed notebook keeps no widget output; :class:`ProgressEcho`, running in the parent process, prints
 the latest bar (the step, the items done and tqdm's time estimate) to the terminal while the notebook runs.
+In a notebook that papermill runs without that variable (``papermill in.ipynb out.ipynb``: the kernel ran
+papermill's injected cell, :func:`run_by_papermill`), a bar is text on the cell's stderr, written at most
+every :data:`MININTERVAL_S` seconds: the executed notebook keeps its last frame, not a widget's empty first.
 
 Foundation layer: imports nothing from hbeo.
 """
@@ -24,18 +27,41 @@ PROGRESS_ENV = "HBEO_PROGRESS_FILE"
 MININTERVAL_S = 5.0
 
 
-def tqdm(*args, **kwargs):
-    """``tqdm.auto.tqdm(*args, **kwargs)``, or, when :data:`PROGRESS_ENV` names a file, a text bar written to
-    that file (the caller's ``disable`` still applies)."""
-    path = os.environ.get(PROGRESS_ENV)
-    if not path:
-        from tqdm.auto import tqdm as auto
-        return auto(*args, **kwargs)
+#: The first line of the cell papermill injects after a notebook's ``parameters`` cell (its Python translator).
+PAPERMILL_HEADER = "# Parameters\n"
+
+
+def kernel_history() -> list:
+    """The cells this IPython kernel ran, in order (IPython's ``In``); [] outside IPython."""
+    ip = sys.modules.get("IPython")
+    shell = ip.get_ipython() if ip is not None else None
+    return list(shell.user_ns.get("In", [])) if shell is not None else []
+
+
+def run_by_papermill(history=None) -> bool:
+    """Whether the kernel ran papermill's injected parameters cell (``history``: default :func:`kernel_history`)."""
+    return any(str(cell).startswith(PAPERMILL_HEADER) for cell in (kernel_history() if history is None else history))
+
+
+def _text_bar(args, kwargs, stream):
     from tqdm.std import tqdm as text
-    stream = open(path, "a", buffering=1, encoding="utf-8")   # closed with the bar (below)
     kwargs.update(file=stream, mininterval=max(MININTERVAL_S, kwargs.get("mininterval", 0)), ncols=100,
                   dynamic_ncols=False, ascii=True)
-    bar = text(*args, **kwargs)
+    return text(*args, **kwargs)
+
+
+def tqdm(*args, **kwargs):
+    """``tqdm.auto.tqdm(*args, **kwargs)``, or, when :data:`PROGRESS_ENV` names a file, a text bar written to
+    that file, or, in a notebook papermill runs without it, a text bar on stderr (the caller's ``disable``
+    still applies)."""
+    path = os.environ.get(PROGRESS_ENV)
+    if not path:
+        if run_by_papermill():
+            return _text_bar(args, kwargs, sys.stderr)
+        from tqdm.auto import tqdm as auto
+        return auto(*args, **kwargs)
+    stream = open(path, "a", buffering=1, encoding="utf-8")   # closed with the bar (below)
+    bar = _text_bar(args, kwargs, stream)
     close = bar.close
 
     def close_both():

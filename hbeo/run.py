@@ -30,6 +30,7 @@ from hbeo.errors import DataError, HBEOError
 from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.limits import check_in_memory, check_workers
+from hbeo.progress import PAPERMILL_HEADER, kernel_history
 from hbeo.render.views import RenderSettings, check_grid_records
 from hbeo.rundir import BASELINE_FILES, RunDir, failure_summary
 from hbeo.storage import atomic_text, json_text
@@ -130,10 +131,6 @@ def voxelize_to_file(profile, dataset: str, out, workers: int = 0, strict: bool 
     return res.report()
 
 
-#: The first line of the cell papermill injects after a notebook's ``parameters`` cell (its Python translator).
-PAPERMILL_HEADER = "# Parameters\n"
-
-
 def _assigned(source: str) -> set:
     """The names a cell's top-level statements assign (nothing when it does not parse)."""
     import ast
@@ -151,13 +148,10 @@ def check_notebook_parameters(history=None) -> None:
     Papermill only warns of an unknown ``-p`` name, and the notebook then runs with the default of the name
     it was meant to be (``-p epcohs 3`` trains the profile's epochs). ``history``: the cells the kernel
     ran, in order (default: IPython's ``In``; outside IPython nothing is checked). The cell papermill
-    injected (:data:`PAPERMILL_HEADER`) is compared with the cells run before it; where none was
+    injected (:data:`hbeo.progress.PAPERMILL_HEADER`) is compared with the cells run before it; where none was
     injected (nbval, JupyterLab, a script) this does nothing."""
-    if history is None:
-        ip = sys.modules.get("IPython")
-        shell = ip.get_ipython() if ip is not None else None
-        history = shell.user_ns.get("In", []) if shell is not None else []
     import difflib
+    history = kernel_history() if history is None else history
     for i in range(len(history) - 1, 0, -1):
         if history[i].startswith(PAPERMILL_HEADER):
             declared = set().union(*map(_assigned, history[:i]))

@@ -197,3 +197,16 @@ def test_chromium_shows_a_3d_view_offline(tmp_path):
             assert drawn[0] == 4 and drawn[1] and drawn[2] >= 1, drawn
         finally:
             browser.close()
+
+
+def test_a_text_bar_shows_its_last_frame_in_the_book(tmp_path):
+    """A notebook papermill ran directly holds its bars as stderr text with one frame per carriage return."""
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_code_cell("train()", execution_count=1, outputs=[
+        nbformat.v4.new_output("stream", name="stderr", text="train:  10%|#    | 1/10 FIRSTFRAME\r"),
+        nbformat.v4.new_output("stream", name="stderr", text="train: 100%|#####| 10/10 LASTFRAME\n"),
+        nbformat.v4.new_output("stream", name="stdout", text="done\n")])]
+    nbformat.write(nb, tmp_path / "04_train.ipynb")
+    page = book.notebook_page(tmp_path / "04_train.ipynb", "ci-procedural")
+    assert "LASTFRAME" in page and "FIRSTFRAME" not in page and "done" in page
+

@@ -43,3 +43,18 @@ def test_the_echo_prints_changes_with_the_notebook_and_restores_the_environment(
     lines = out.getvalue().splitlines()
     assert len(lines) == 1 and lines[0].startswith("[hbeo 4/8] 04_train 0:0")
     assert lines[0].endswith("hbeonet epoch 2/15:  40%| 250/625 [00:20<00:30]")
+
+
+def test_in_a_notebook_papermill_runs_a_bar_is_text_on_stderr(monkeypatch, capsys):
+    """Papermill run directly (no progress file): the executed notebook keeps text, not a widget's empty frame."""
+    monkeypatch.delenv(progress.PROGRESS_ENV, raising=False)
+    history = ["", 'profile = "ci"', '# Parameters\nprofile = "cpu"\n', "train()"]
+    assert progress.run_by_papermill(history) and not progress.run_by_papermill(history[:2] + history[3:])
+    monkeypatch.setattr(progress, "kernel_history", lambda: history)
+    with progress.tqdm(range(5), desc="render") as bar:
+        assert type(bar).__module__ == "tqdm.std"                     # not tqdm.notebook's widget
+        list(bar)
+    err = capsys.readouterr().err
+    assert err.split("\r")[-1].strip().startswith("render: 100%") and "5/5" in err
+    monkeypatch.setattr(progress, "kernel_history", lambda: history[:2])
+    assert progress.run_by_papermill() is False                      # JupyterLab or nbval: tqdm.auto decides

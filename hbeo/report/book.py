@@ -135,7 +135,10 @@ def _exporter():
 
 def _offline_notebook(nb, title: str):
     """``nb`` (nbformat node, changed in place) without the outputs that need scripts from the network
-    (:data:`SCRIPT_MIMES`; an output left with nothing is dropped) and its widget state; titled ``title``."""
+    (:data:`SCRIPT_MIMES`; an output left with nothing is dropped) and its widget state, with each cell's stream
+    outputs merged and a text progress bar's frames reduced to its last (nbconvert's
+    ``CoalesceStreamsPreprocessor``: what a terminal or JupyterLab shows of ``\\r``); titled ``title``."""
+    from nbconvert.preprocessors import CoalesceStreamsPreprocessor
     nb.metadata.pop("widgets", None)
     nb.metadata["title"] = title
     for cell in nb.cells:
@@ -150,6 +153,7 @@ def _offline_notebook(nb, title: str):
             outs.append(out)
         if "outputs" in cell:
             cell["outputs"] = outs
+            CoalesceStreamsPreprocessor().preprocess_cell(cell, {}, 0)
     return nb
 
 
