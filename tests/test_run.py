@@ -103,15 +103,15 @@ def test_a_missing_baseline_is_fitted_in_a_folder_that_holds_only_the_committed_
 
 # ------------------------------------------------------------------ papermill parameters
 
-PARAMS = 'profile = "ci"\ndataset = "procedural"\nepochs = None  # the profile\'s\n'
+PARAMS = 'profile = "ci"\ndataset = "procedural"\nepochs = None  # the profile\'s\nwidth, height = 80, 60\n'
 
 
 def test_a_misspelt_papermill_parameter_is_refused_with_the_near_name():
     from hbeo.run import check_notebook_parameters
     history = ["", "%matplotlib inline", PARAMS, '# Parameters\nprofile = "cpu"\nepcohs = 3\n']
-    with pytest.raises(ValueError, match=r"'epcohs' \(did you mean 'epochs'\?\).*dataset, epochs, profile"):
+    with pytest.raises(ValueError, match=r"'epcohs' \(did you mean 'epochs'\?\).*dataset, epochs, height, profile, width\)"):
         check_notebook_parameters(history)
-    check_notebook_parameters(history[:3] + ['# Parameters\nprofile = "cpu"\nepochs = 3\n'])   # known names
+    check_notebook_parameters(history[:3] + ['# Parameters\nprofile = "cpu"\nepochs = 3\nheight = 90\n'])   # known
     check_notebook_parameters(history[:3])                          # not run by papermill: nothing to check
     check_notebook_parameters(["", '# Parameters\nx = 1\n'])         # nothing run before it: not judged
     check_notebook_parameters(history[:3] + ['# Parameters\nepochs = 3\n', "zz = 1",       # the last injection
