@@ -61,3 +61,53 @@ def test_masks_and_intrinsics(tmp_path):
     for bad in ("525,525,319.5", "a,b,c,d", "-5,525,319,239", "525,525,5000,239"):
         with pytest.raises(ValueError):
             parse_intrinsics(bad, 640, 480)
+
+
+def _disc(h=24, w=32) -> np.ndarray:
+    v, u = np.mgrid[0:h, 0:w]
+    return ((u - 16) ** 2 + (v - 12) ** 2 < 49).astype(np.uint8) * 255
+
+
+def test_a_mask_is_two_valued_and_says_what_marks_the_object(tmp_path):
+    m = _disc()
+    Image.fromarray(m).save(tmp_path / "m.png")
+    want = read_mask(tmp_path / "m.png", m.shape)
+    assert want.sum() == (m > 0).sum()
+    la = np.stack([m, np.full_like(m, 255)], -1)                # grey + opaque alpha: the grey marks it
+    Image.fromarray(la, "LA").save(tmp_path / "la.png")
+    assert (read_mask(tmp_path / "la.png", m.shape) == want).all()
+    rgba = np.dstack([np.full((*m.shape, 3), 255, np.uint8), m])  # white, the alpha marks it
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "rgba.png")
+    assert (read_mask(tmp_path / "rgba.png", m.shape) == want).all()
+    rgb = np.dstack([m, m // 2, np.zeros_like(m)])              # one colour on black
+    Image.fromarray(rgb, "RGB").save(tmp_path / "rgb.png")
+    assert (read_mask(tmp_path / "rgb.png", m.shape) == want).all()
+    both = np.dstack([rgb, m[::-1]])
+    Image.fromarray(both, "RGBA").save(tmp_path / "both.png")
+    with pytest.raises(DataError, match="both.png.*ambiguous"):
+        read_mask(tmp_path / "both.png", m.shape)
+
+
+def test_a_blurred_or_lossy_mask_is_refused_not_thresholded(tmp_path):
+    m = _disc()
+    Image.fromarray(m).save(tmp_path / "m.jpg", quality=90)
+    with pytest.raises(DataError, match="m.jpg.*lossy format"):
+        read_mask(tmp_path / "m.jpg", m.shape)
+    soft = m.copy()
+    soft[12, 9] = 128                                            # one anti-aliased edge pixel
+    Image.fromarray(soft).save(tmp_path / "soft.png")
+    with pytest.raises(DataError, match="soft.png: mask holds 3 values"):
+        read_mask(tmp_path / "soft.png", m.shape)
+    np.save(tmp_path / "labels.npy", (m > 0) * 1 + np.eye(24, 32, dtype=int) * 2)   # an instance-label image
+    with pytest.raises(DataError, match="labels.npy.*mask == k"):
+        read_mask(tmp_path / "labels.npy", m.shape)
+    Image.fromarray(np.where(m > 0, 255, 128).astype(np.uint8)).save(tmp_path / "grey.png")
+    with pytest.raises(DataError, match="2 values"):                # no zero background
+        read_mask(tmp_path / "grey.png", m.shape)
+
+
+def test_a_file_of_several_images_is_refused(tmp_path):
+    pages = [Image.fromarray(np.full((6, 8), 1.5, np.float32)) for _ in range(3)]
+    pages[0].save(tmp_path / "d.tif", save_all=True, append_images=pages[1:])
+    with pytest.raises(DataError, match="d.tif: the file holds 3 images"):
+        read_depth(tmp_path / "d.tif")

@@ -67,6 +67,10 @@ def test_object_partly_outside_or_tiny_is_low_confidence(tiny):
     assert edge["low_confidence"] and any("inside the model's view" in w for w in edge["warnings"])
     small = tiny.predict(box(K, slice(10, 12), slice(10, 12)), K).to_dict()
     assert small["low_confidence"] and any("fills only 4" in w for w in small["warnings"])
+    coarse = Intrinsics(K.fx / 4, K.fy / 4, (K.width / 4 - 1) / 2, (K.height / 4 - 1) / 2, K.width // 4, K.height // 4)
+    few = tiny.predict(box(coarse, slice(2, 5), slice(3, 6)), coarse).to_dict()     # 9 pixels, stretched
+    assert few["low_confidence"] and any("seen by only 9 pixels of the image" in w for w in few["warnings"])
+    assert not any("seen by only" in w for w in ok.to_dict()["warnings"] + small["warnings"])
 
 
 def test_depth_far_from_training_distances_is_low_confidence(tiny):

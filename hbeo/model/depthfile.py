@@ -39,9 +39,13 @@ def _read_raw(path: Path) -> np.ndarray:
     from PIL import Image
     try:
         with Image.open(path) as im:
-            return np.array(im)
+            pages = getattr(im, "n_frames", 1)
+            arr = np.array(im)
     except Exception as err:
         raise DataError(path, f"unreadable image ({type(err).__name__}: {err})") from None
+    if pages > 1:
+        raise DataError(path, f"the file holds {pages} images (pages or frames); expected one")
+    return arr
 
 
 def read_depth(path, depth_scale: float | None = None) -> np.ndarray:
@@ -80,10 +84,35 @@ def read_depth(path, depth_scale: float | None = None) -> np.ndarray:
     return d.astype(np.float32)
 
 
+def _mask_values(path: Path, m: np.ndarray) -> np.ndarray:
+    """The 2-D array that marks the object in mask image ``m``: the image itself, or of a colour image (H, W, C)
+    its colour channels when its alpha (the last of 2 or 4 channels) is constant, else its alpha when the colours
+    are; DataError when both vary (which marks the object is ambiguous)."""
+    if m.ndim == 2:
+        return m
+    alpha = m[..., -1] if m.shape[-1] in (2, 4) else None
+    colour = m[..., :-1] if alpha is not None else m
+    def still(a):
+        return bool((a == a.reshape(-1, *a.shape[2:])[0]).all())
+    if alpha is None or still(alpha):
+        return colour
+    if still(colour):
+        return alpha
+    raise DataError(path, "mask varies in both colour and alpha, so which marks the object is ambiguous; save "
+                          "it as one channel: 0 background, one non-zero value for the object")
+
+
 def read_mask(path, shape: tuple[int, int]) -> np.ndarray:
-    """Bool mask (H, W) from a PNG/.npy/.tif (non-zero = object); must match ``shape``."""
+    """Bool mask (H, W) from a PNG/.npy/.tif: 0 = background, one non-zero value (or colour) = object; must
+    match ``shape``. A colour image marks the object by its colours, or by its alpha where the colours are
+    constant. More than two values (a JPEG's or an anti-aliased edge's blur, an instance-label image) are
+    refused: thresholding them here would silently take in background pixels."""
     path = Path(path)
     require_file(path, "mask")
+    if path.suffix.lower() not in SUFFIXES:
+        lossy = " (a lossy format blurs the mask's edges into background pixels)" if path.suffix.lower() in (
+            ".jpg", ".jpeg", ".webp") else ""
+        raise DataError(path, f"unsupported mask format {path.suffix!r}{lossy}; expected {', '.join(SUFFIXES)}")
     m = _read_raw(path)
     if m.ndim not in (2, 3) or m.size == 0:
         raise DataError(path, f"mask must be a 2-D image (or RGB(A)), got shape {m.shape}")
@@ -91,8 +120,15 @@ def read_mask(path, shape: tuple[int, int]) -> np.ndarray:
         raise DataError(path, f"mask has dtype {m.dtype}; expected booleans or numbers (non-zero = object)")
     if m.dtype.kind == "f" and not np.isfinite(m).all():
         raise DataError(path, "mask has NaN or infinite values; expected 0 (background) and non-zero (object)")
-    if m.ndim == 3:                      # RGB(A) masks: any non-zero channel
-        m = m[..., :3].any(axis=-1)
+    m = _mask_values(path, m)
+    values = np.unique(m.reshape(-1, *m.shape[2:]), axis=0)
+    if len(values) > 2 or (len(values) == 2 and values[0].any()):
+        what = "colours" if m.ndim == 3 else "values"
+        raise DataError(path, f"mask holds {len(values)} {what} where a mask holds two (0 background, one "
+                              "non-zero value for the object): a JPEG's or an anti-aliased edge's blur, or an "
+                              "instance-label image; threshold it or pick the object's label (mask == k) yourself")
+    if m.ndim == 3:
+        m = m.any(axis=-1)
     if m.shape != tuple(shape):
         raise DataError(path, f"mask is {m.shape[1] if m.ndim > 1 else '?'}x{m.shape[0]} but the depth image "
                               f"is {shape[1]}x{shape[0]}")

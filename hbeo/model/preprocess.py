@@ -43,6 +43,7 @@ class View:
     zoom: float             #: virtual focal length / model focal length (1 without ref_distance)
     coverage: float = 1.0   #: fraction of the object's points (valid masked pixels) inside the model's image
     filled: int = 0         #: non-zero pixels of ``depth`` (the network's input)
+    points: int = 0         #: the object's valid pixels in the user's image (what ``depth`` is made from)
 
 
 @lru_cache(maxsize=8)
@@ -108,7 +109,7 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     dist = float(np.linalg.norm(center) + lateral)   # the centre lies about one radius behind the surface
     zoom = dist / ref_distance if ref_distance else 1.0
     if not recenter and zoom == 1.0 and K_user == K_model:       # the model's own camera: nothing to resample
-        return View(d.astype(np.float32), Q, center, dist, zoom, 1.0, int(np.count_nonzero(d)))
+        return View(d.astype(np.float32), Q, center, dist, zoom, 1.0, int(np.count_nonzero(d)), len(pts))
     rays = _pixel_rays(K_model, zoom) @ Q.T
     with np.errstate(divide="ignore", invalid="ignore"):
         uu = np.rint(K_user.fx * rays[..., 0] / rays[..., 2] + K_user.cx)
@@ -127,7 +128,7 @@ def to_model_view(depth, K_user: Intrinsics, K_model: Intrinsics, mask=None, rec
     vals[hit] = zv
     out[ok] = vals
     out = out.astype(np.float32)
-    return View(out, Q, center, dist, zoom, _coverage(pts, Q, K_model, zoom), int(np.count_nonzero(out)))
+    return View(out, Q, center, dist, zoom, _coverage(pts, Q, K_model, zoom), int(np.count_nonzero(out)), len(pts))
 
 
 def _coverage(pts: np.ndarray, Q: np.ndarray, K: Intrinsics, zoom: float) -> float:

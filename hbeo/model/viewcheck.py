@@ -5,9 +5,9 @@ An image the model cannot have understood raises :class:`~hbeo.errors.DataError`
 distance (outside :data:`hbeo.model.depthfile.DEPTH_RANGE_M` metres, e.g. millimetres given as metres) or one
 that reaches none of the network's input pixels (wrong intrinsics, wrong mask). One that is usable but
 suspicious gets warnings (plain sentences): the object partly outside the model's view (below
-:data:`MIN_COVERAGE` of its pixels inside), tiny in it (below :func:`min_input_pixels`), off the optical axis a
-model trained without recentering was trained near (:data:`OFF_AXIS_FACTOR`), or far from the training
-distances (:data:`DISTANCE_FACTOR`). Notebook 08's table of checks (:func:`hbeo.lessons.yourdepth.checks`)
+:data:`MIN_COVERAGE` of its pixels inside), tiny in it or in the image it came from (below
+:func:`min_input_pixels`), off the optical axis a model trained without recentering was trained near
+(:data:`OFF_AXIS_FACTOR`), or far from the training distances (:data:`DISTANCE_FACTOR`). Notebook 08's table of checks (:func:`hbeo.lessons.yourdepth.checks`)
 shows the same limits on one frame.
 
 May import: foundation and the other hbeo.model modules.
@@ -59,6 +59,9 @@ def check_view(v, K: Intrinsics, settings, recenter: bool, index: int | None = N
                    f"off); check the intrinsics and the mask")
     if v.filled < min_input_pixels(K):
         out.append(f"the object fills only {v.filled} of the model's {K.width}x{K.height} input pixels")
+    elif 0 < v.points < min_input_pixels(K):
+        out.append(f"the object is seen by only {v.points} pixels of the image; the model's view of it "
+                   f"({v.filled} pixels) is stretched from them, too few to show its shape")
     shift = settings.render.get("shift")
     if shift and not recenter and v.center[2] > 0:
         off = float(np.max(np.abs(v.center[:2])) / v.center[2])
