@@ -224,3 +224,11 @@ def test_component_counts_are_the_fewest_that_reach_the_variance_fraction(fitted
         assert np.sum(spectrum[:k]) >= 0.6 - 1e-9
         assert np.sum(spectrum[:k - 1]) < 0.6, (c, k, np.cumsum(spectrum))
         assert len(fitted.class_components_[c]) == k
+
+
+def test_a_class_whose_fit_did_not_converge_is_named(some):
+    """A per-class VBPCA stopped by its iteration cap warns, naming the class (no filter hides it)."""
+    from sklearn.exceptions import ConvergenceWarning
+    X, y = some
+    with pytest.warns(ConvergenceWarning, match=r"class 'bed': VBPCA stopped at max_iter=2"):
+        ObjectSubspace(vbpca={"max_iter": 2}).fit(X, y, classes=SOME, progress=False)

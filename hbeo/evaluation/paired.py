@@ -3,8 +3,13 @@
 Every method of a run is scored on the same (object, view) pairs (:mod:`hbeo.evaluation.protocol`),
 so a difference between two methods is measured on the pairs both answered, and its uncertainty is
 that of the *objects*: :class:`PairedBootstrap` draws ``n_boot`` resamples of the test objects (with
-replacement, within each class, so every resample keeps the class counts; an object brings all of
-its views), once per run, and every statistic of every method is computed on the same resamples.
+replacement, within each class, so every resample keeps the run's class counts; an object brings all of
+its views), once per run, and every statistic of every method is computed on the same resamples. A method
+that answers a subset of the objects (the slow searches: a few objects per class) sees the subset's class
+counts vary from resample to resample (for 10 of ~90 objects a class, a class's weight is about
+Binomial(90, 1/9)), which makes its intervals somewhat wider (conservative) than a bootstrap stratified on
+the subset would; a resample that leaves a statistic undefined
+(a class of the subset drawn zero times, for a class mean) is left out of the percentiles.
 Intervals are percentile intervals at ``level`` (95 %); the same inputs and seed give the same
 intervals.
 

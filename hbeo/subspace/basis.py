@@ -111,10 +111,12 @@ class ObjectSubspace:
             cap = self.max_components
             if fixed is not None:
                 cap = fixed[name] if isinstance(fixed, dict) else int(fixed)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)  # "variance not reached" is handled below
-                kw = dict(self.vbpca, prune=False) if fixed is not None else self.vbpca
+            kw = dict(self.vbpca, prune=False) if fixed is not None else self.vbpca
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
                 models[name] = VBPCA(n_components=cap, variance=None, **kw).fit(Xc)
+            for w in caught:                                # a fit that did not converge, say: named by its class
+                warnings.warn(f"class {name!r}: {w.message}", w.category, stacklevel=2)
             means.append(models[name].mean_.astype(np.float32))
         spectra = {c: m.explained_variance_ratio_ for c, m in models.items()}
         if fixed is not None:
