@@ -87,25 +87,33 @@ def _temporary(path: Path) -> tuple[int, str]:
 def atomic_files(specs, **kw):
     """Write several files together, each as :func:`atomic_file` does: ``specs`` is ``[(path, mode), ...]``
     and the files are yielded in that order. On a clean exit every file reaches the disk before any is
-    renamed into place, so a failure (a full disk) leaves all of them as they were, and no temporary."""
-    made: list = []                     # (temporary, path, file)
+    renamed into place, so a failure (a full disk) leaves all of them as they were, and no temporary. A path
+    that is a link is written through (the file it names is replaced, the link stays); one that names a device
+    or a pipe (``--out /dev/null``) is written in place, not atomically (replacing it would replace the device)."""
+    made: list = []                     # (temporary, path, file); temporary None: written in place
     current = None                      # the path an OSError without a file name is about
     try:
         for path, mode in specs:
             current = Path(path)
-            fd, tmp = _temporary(current)
-            made.append((tmp, current, None))
+            real = Path(os.path.realpath(current))      # through a link: the file it names is written
+            if real.exists() and not real.is_file():    # a device or a pipe (/dev/null): in place, never replaced
+                made.append((None, current, open(real, mode, **kw)))
+                continue
+            fd, tmp = _temporary(real)
+            made.append((tmp, real, None))
             f = os.fdopen(fd, mode, **kw)
-            made[-1] = (tmp, current, f)
+            made[-1] = (tmp, real, f)
             os.fchmod(f.fileno(), 0o666 & ~current_umask())
         current = made[0][1] if made else None
         yield [f for _, _, f in made]
-        for _, current, f in made:
+        for tmp, current, f in made:
             f.flush()
-            os.fsync(f.fileno())
+            if tmp is not None:
+                os.fsync(f.fileno())
             f.close()
         for tmp, current, _ in made:
-            os.replace(tmp, current)
+            if tmp is not None:
+                os.replace(tmp, current)
     except BaseException as err:
         for tmp, _, f in made:
             if f is not None:
@@ -113,8 +121,9 @@ def atomic_files(specs, **kw):
                     f.close()
                 except OSError:
                     pass
-            Path(tmp).unlink(missing_ok=True)
-        if isinstance(err, OSError) and current is not None and err.filename in (None, *(t for t, _, _ in made)):
+            if tmp is not None:
+                Path(tmp).unlink(missing_ok=True)
+        if isinstance(err, OSError) and current is not None and err.filename in (None, *(t for t, _, _ in made if t)):
             raise OSError(err.errno, err.strerror, str(current)) from err
         raise
 

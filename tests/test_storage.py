@@ -112,3 +112,25 @@ def test_read_npz_refuses_a_pickled_array_without_running_it(tmp_path):
     with pytest.raises(DataError, match="evil.npz"):
         read_npz(evil, ["basis"], "subspace", 1)
     assert not marker.exists()
+
+
+def test_a_link_is_written_through_and_a_pipe_in_place(tmp_path):
+    """--out through a link updates the file it names; --out naming a device or pipe (/dev/null) is written
+    to, never replaced by a regular file (as root, a rename would have replaced the device itself)."""
+    import threading
+    target = tmp_path / "real.json"
+    target.write_text("old")
+    (tmp_path / "link.json").symlink_to(target)
+    atomic_text(tmp_path / "link.json", "new")
+    assert (tmp_path / "link.json").is_symlink() and target.read_text() == "new"
+    if not hasattr(os, "mkfifo"):
+        return
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_text()))
+    reader.start()
+    atomic_text(fifo, "through the pipe")
+    reader.join(timeout=10)
+    assert got == ["through the pipe"] and stat.S_ISFIFO(fifo.stat().st_mode)
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
