@@ -113,3 +113,47 @@ def test_why_off_keeps_its_own_parser():
     with pytest.raises(Exception):
         _trimesh_off(text)
     assert parse_off(text)[1].tolist() == [[0, 1, 2], [0, 1, 4], [0, 4, 2], [0, 2, 3]]
+
+
+@pytest.mark.parametrize("text, extra", [
+    ("OFF\n4 1 0\n" + SQUARE + "3 0 1 2\n3 0 2 3\n", "'3 0 2 3'"),             # a face more
+    ("OFF\n3 1 0\n" + SQUARE + "3 0 1 2\n", "'3 0 1 2'"),                      # a vertex more
+    ("OFF\n4 1 0\n" + SQUARE + "3 0 1 2\n# end\n3 0 2 3\n", "'3 0 2 3'"),      # slow path (comments)
+])
+def test_data_beyond_the_header_counts_is_refused_not_dropped(text, extra, tmp_path):
+    p = tmp_path / "long.off"
+    p.write_text(text)
+    with pytest.raises(DataError, match=r"long\.off: OFF header promises .* extra \(first: " + extra) as err:
+        read_mesh(p)
+    assert "fix the counts line" in str(err.value)
+    # trailing blank lines and comments are no data
+    assert parse_off("OFF\n4 1 0\n" + SQUARE + "3 0 1 2\n\n# made by hand\n\n")[1].shape == (1, 3)
+
+
+def test_real_modelnet_meshes_have_no_data_beyond_their_counts(sample_dir):
+    for p in sorted(sample_dir.glob("*/*/*.off")):
+        assert read_mesh(p).faces.shape[0] > 0
+
+
+def test_utf8_byte_order_mark_is_accepted(tmp_path):
+    p = tmp_path / "bom.off"
+    p.write_bytes("\ufeffOFF\n4 2 0\n".encode() + (SQUARE + "3 0 1 2\n3 0 2 3\n").encode())
+    m = read_mesh(p)
+    assert m.vertices.shape == (4, 3) and m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+    assert parse_off("\ufeffOFF4 1 0\n" + SQUARE + "3 0 1 2\n")[1].shape == (1, 3)
+
+
+@pytest.mark.parametrize("far", [[1e11, 0, 0], [0, 0, 1e11], [1e11, 1e11, 1e11]])
+def test_one_far_vertex_is_a_too_wide_range_not_collinear(far, tmp_path):
+    from hbeo.data.meshio import check_mesh
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], far], float)
+    for faces in ([[0, 1, 2], [0, 1, 3]], [[0, 1, 2]]):            # the far vertex used by a face, or not
+        with pytest.raises(DataError, match=r"^far\.off: degenerate mesh: its coordinates span too wide a "
+                                            r"range: .*vertex 3 at \(" + ", ".join(f"{x:g}" for x in far)
+                                            .replace("+", r"\+") + r"\)") as err:
+            check_mesh(v, np.array(faces), "far.off")
+        assert "collinear" not in str(err.value)
+    # truly collinear vertices (even far from the origin) still say so
+    line = np.arange(50)[:, None] * np.array([[0.1, 0.2, 0.3]]) + 1e6
+    with pytest.raises(DataError, match="all 50 vertices are collinear"):
+        check_mesh(line, np.array([[0, 1, 2]]), "line.off")

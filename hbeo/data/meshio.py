@@ -100,10 +100,12 @@ def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
     """Parse OFF text -> (vertices (V, 3) float64, faces (F, 3) int64).
 
     Accepts the standard header (``OFF`` line, then ``V F E``), ModelNet's broken
-    one-line header (``OFF1234 5678 0``), ``#`` comments, blank lines, per-vertex or
-    per-face colours after the coordinates, and polygons with any number of sides
-    (fan-triangulated). Raises :class:`DataError` naming ``path`` on anything else.
+    one-line header (``OFF1234 5678 0``), a leading UTF-8 byte-order mark, ``#`` comments,
+    blank lines, per-vertex or per-face colours after the coordinates, and polygons with any
+    number of sides (fan-triangulated). Raises :class:`DataError` naming ``path`` on anything
+    else, including data lines beyond the header's counts (a wrong header, never silently dropped).
     """
+    text = text[1:] if text.startswith("\ufeff") else text   # a UTF-8 byte-order mark (Windows editors)
     n_v, n_f, start = _off_header(text, path)
     body = text[start:]
     verts = faces = None
@@ -124,6 +126,10 @@ def parse_off(text: str, path=None) -> tuple[np.ndarray, np.ndarray]:
         if len(lines) < n_v + n_f:
             raise DataError(path, f"truncated OFF: header promises {n_v} vertices and {n_f} faces, "
                                   f"file has {len(lines)} data lines")
+        if len(lines) > n_v + n_f:   # extra vertices or faces: the header's counts are wrong
+            raise DataError(path, f"OFF header promises {n_v} vertices and {n_f} faces ({n_v + n_f} data "
+                                  f"lines) but the file has {len(lines)}; the {len(lines) - n_v - n_f} extra "
+                                  f"(first: {lines[n_v + n_f][:60]!r}) would be lost: fix the counts line")
         verts = _numbers(lines[:n_v], 3, np.float64, path, "vertex")
         faces = _faces(lines[n_v:n_v + n_f], path)
     _bad_vertex(verts, path)
@@ -158,11 +164,30 @@ def _bad_vertex(v: np.ndarray, name) -> None:
                               f"(a corrupt file?)")
 
 
+def _line_like(v: np.ndarray, c: np.ndarray, extent: float, name) -> None:
+    """DataError for vertices ``v`` (centred: ``c``) that lie within :data:`_TINY` of their span
+    ``extent`` of one line: collinear, when they are on it up to rounding; else the coordinates
+    span too wide a range (one far vertex, e.g. at 1e11 beside a unit-size mesh, makes the rest a
+    point and the whole a line in the grid layout, which spans all vertices)."""
+    axis = np.linalg.svd(c / extent, full_matrices=False)[2][0]
+    along = c @ axis
+    across = float(np.linalg.norm(c - np.outer(along, axis), axis=1).max())
+    rounding = 64 * np.finfo(np.float64).eps * max(extent, float(np.abs(v).max()))
+    if across <= rounding:
+        raise DataError(name, f"degenerate mesh: all {len(v)} vertices are collinear (on one line)")
+    i = int(np.argmax(np.abs(v - np.median(v, axis=0)).max(axis=1)))
+    raise DataError(name, f"degenerate mesh: its coordinates span too wide a range: {float(np.ptp(along)):.3g} along one "
+                          f"line but at most {across:.3g} across it (under {_TINY:g} of the span), so in the "
+                          f"grid it is a line; vertex {i} at {_xyz(v[i])} lies farthest out (a stray vertex "
+                          f"or a wrong coordinate?)")
+
+
 def check_mesh(vertices, faces, name=None) -> tuple[np.ndarray, np.ndarray]:
     """Validated (vertices (V, 3) float64, faces (F, 3) int64) of a mesh; :class:`DataError`
     naming ``name`` (its file or id) and the offending value if the mesh is empty, has a
     non-finite or absurdly far vertex (beyond :data:`MAX_COORD`), a face indexing a vertex that
-    does not exist, or is degenerate: all vertices coincide or lie on one line, one stray vertex
+    does not exist, or is degenerate: all vertices coincide or lie on one line (or, to within
+    :data:`_TINY` of their span, do: coordinates spanning too wide a range), one stray vertex
     so far away that the faces shrink to a point in the grid layout (which spans all vertices),
     or faces of zero total area."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -185,7 +210,7 @@ def check_mesh(vertices, faces, name=None) -> tuple[np.ndarray, np.ndarray]:
     # rounding of an exact line's second value reaches ~1e-8 relative, above _TINY on some CPUs
     s = np.linalg.svd(c / extent, compute_uv=False)
     if s[1] <= _TINY * s[0]:
-        raise DataError(name, f"degenerate mesh: all {len(v)} vertices are collinear (on one line)")
+        _line_like(v, c, extent, name)
     used = v[np.unique(f)]
     if float(np.ptp(used, axis=0).max()) <= _TINY * extent:
         lo, hi = used.min(axis=0), used.max(axis=0)
@@ -211,7 +236,7 @@ def read_mesh(path) -> trimesh.Trimesh:
         raise DataError(path, f"unsupported mesh format {suffix!r}; expected one of {', '.join(MESH_SUFFIXES)}")
     if suffix == ".off":
         try:
-            text = path.read_text(errors="strict")
+            text = path.read_text(encoding="utf-8", errors="strict")
         except UnicodeDecodeError:
             raise DataError(path, "not a text OFF file (binary OFF is not supported)") from None
         verts, faces = parse_off(text, path)
