@@ -242,3 +242,27 @@ def test_vox30_record_pickles_its_own_grid_not_the_whole_archive(tmp_path):
         assert np.array_equal(back.grid(), r.grid()) and back.id == r.id and back.grid().shape == (30, 30, 30)
     a, b = recs[5].grid(), recs[6].grid()
     assert a.base is not None and a.base is b.base                     # in this process: views, no copies
+
+
+BOX_OFF = "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 3\n3 0 2 3\n3 1 2 3\n"
+
+
+@pytest.mark.parametrize("files, pair", [
+    (["chair/train/a.off", "chair/train/a.obj", "chair/train/b.off"], ("chair/train/a.obj", "chair/train/a.off")),
+    (["chair/train/0001.off", "table/train/0001.off"], ("chair/train/0001.off", "table/train/0001.off")),
+    (["chair/train/0001.off", "chair/test/0001.off"], ("chair/train/0001.off", "chair/test/0001.off")),
+])
+def test_folder_source_refuses_ids_shared_by_two_files(files, pair, tmp_path):
+    """An id is a file stem; two files with one would make lookups by id (GridSet.rows_of, the grouped
+    validation split, mirror targets) return the other object's grid."""
+    for f in files:
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text(BOX_OFF)
+    with pytest.raises(DataError, match="shared by several files") as err:
+        datasets.get_dataset(str(tmp_path))
+    msg = str(err.value)
+    assert msg.startswith(str(tmp_path)) and all(p in msg for p in pair)
+    assert "rename" in msg and "chair_0001" in msg
+    (tmp_path / pair[1]).rename((tmp_path / pair[1]).with_name("chair_" + (tmp_path / pair[1]).name))
+    ids = [r.id for r in datasets.get_dataset(str(tmp_path))]            # renamed: accepted
+    assert len(ids) == len(set(ids)) == len(files)

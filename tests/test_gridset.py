@@ -89,3 +89,20 @@ def test_rows_of_and_grids_of_match_ids_as_strings_and_leave_missing_empty():
     assert not out[1].any()
     assert out[2, 1, 1, 1] and out[2].sum() == 1
     assert gs.grids_of([]).shape == (0, 4, 4, 4)
+
+
+def test_grid_sets_refuse_repeated_ids_when_built_or_loaded(small, tmp_path):
+    """A repeated id would make rows_of / grids_of return another object's grid for it."""
+    ds, recs = small
+    twice = [recs[0], recs[1], recs[0]]
+    with pytest.raises(DataError, match=r"appear more than once \(bathtub_0001\)") as err:
+        build_gridset(ds, twice, "train", cache=tmp_path / "c", progress=False)
+    assert err.value.path == ds.name
+    g = np.zeros((3, 30, 30, 30), bool)
+    with pytest.raises(DataError, match=r"appear more than once \(a\)"):
+        GridSet(g, np.array([0, 1, 0]), np.array(["a", "b", "a"]), ("x", "y"), "train")
+    gs = GridSet(g, np.array([0, 1, 0]), np.array(["a", "b", "c"]), ("x", "y"), "train")
+    gs.ids = np.array(["a", "b", "a"])                                   # a file written before the check
+    path = gs.save(tmp_path / "dup.npz")
+    with pytest.raises(DataError, match=r"dup\.npz: 1 object id\(s\) appear more than once \(a\)"):
+        GridSet.load(path)

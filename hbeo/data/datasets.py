@@ -188,7 +188,11 @@ class FolderDataset(Dataset):
     """Meshes in ModelNet layout: ``root/CLASS/{train,test}/*.off|obj|ply|stl``.
 
     Classes are the sub-folders that hold a ``train`` or ``test`` folder; ids are the
-    file stems. Raises :class:`MissingDataError` if ``root`` holds no such tree.
+    file stems. Raises :class:`MissingDataError` if ``root`` holds no such tree, and
+    :class:`DataError` naming both files if two share a stem (``a.off`` beside ``a.obj``, or
+    ``0001.off`` in two classes or splits): runs, grid sets, rendered sets and evaluations find an
+    object by its id, so a shared one would silently stand for another object
+    (:func:`_unique_ids`).
     """
 
     def __init__(self, root, name: str | None = None):
@@ -212,11 +216,32 @@ class FolderDataset(Dataset):
                     if p.suffix.lower() in MESH_SUFFIXES and p.is_file():
                         self._records.append(ObjectRecord(cls, split, p.stem, path=p,
                                                           _mesh=partial(read_mesh, p)))
+        _unique_ids(self._records, root)
 
     def _fingerprint_text(self) -> str:
         lines = [f"{r.split}/{r.cls}/{r.id} {r.path.stat().st_size} {r.path.stat().st_mtime_ns}"
                  for r in self._records]
         return f"folder {self.root.resolve()}\n" + "\n".join(lines)
+
+
+def _unique_ids(records: list[ObjectRecord], root: Path) -> None:
+    """DataError naming ``root`` and the files of each id (file stem) that more than one of ``records``
+    share, saying how to rename them. Ids are not made unique here (e.g. class-qualified where they
+    collide): an object's id would then depend on the other files in the folder, and the ids that
+    grid sets, rendered sets and evaluations (``per_query`` objects, the ``class/object`` keys of
+    paired comparisons) record would change when a file is added."""
+    files: dict[str, list[Path]] = {}
+    for r in records:
+        files.setdefault(r.id, []).append(r.path)
+    shared = {i: ps for i, ps in files.items() if len(ps) > 1}
+    if not shared:
+        return
+    listed = "; ".join(" and ".join(str(p.relative_to(root)) for p in ps) for ps in list(shared.values())[:5])
+    more = f" (and {len(shared) - 5} more ids)" if len(shared) > 5 else ""
+    raise DataError(root, f"{len(shared)} object id(s) shared by several files, an object's id being its file "
+                          f"name without the suffix: {listed}{more}. Each file needs a name of its own across "
+                          f"all classes and splits: rename them, e.g. with the class in front as ModelNet10 "
+                          f"does (chair/train/chair_0001.off), and keep one format per object")
 
 
 class ModelNet10Dataset(FolderDataset):

@@ -43,7 +43,7 @@ VOXEL_SETTINGS = {"resolution": C.RESOLUTION, "step": 0.5, "close": 1, "algorith
 @dataclass
 class GridSet:
     """Grids of one split: ``grids`` bool (N, 30, 30, 30), ``labels`` int (N,) into ``classes``,
-    ``ids`` (N,) str."""
+    ``ids`` (N,) str, each a different object (DataError otherwise: :func:`unique_ids`)."""
 
     grids: np.ndarray
     labels: np.ndarray
@@ -60,6 +60,7 @@ class GridSet:
         if self.grids.ndim != 4 or len(self.labels) != n or len(self.ids) != n:
             raise ValueError(f"inconsistent GridSet: grids {self.grids.shape}, "
                              f"labels {np.shape(self.labels)}, ids {np.shape(self.ids)}")
+        unique_ids(self.ids, self.meta.get("dataset"))
 
     @property
     def failures(self) -> list[dict]:
@@ -96,8 +97,8 @@ class GridSet:
     def load(cls, path) -> "GridSet":
         """Read a file written by :meth:`save`; :class:`DataError` naming the file if it is not one:
         meta lacking or mistyping ``resolution`` / ``classes`` / ``split``, a resolution other than
-        30, bit rows that do not fit, labels that are not integers in ``0..len(classes) - 1``, or
-        counts of grids, labels and ids that differ."""
+        30, bit rows that do not fit, labels that are not integers in ``0..len(classes) - 1``,
+        counts of grids, labels and ids that differ, or an id that appears twice (:func:`unique_ids`)."""
         path = Path(path)
         meta, a = read_npz(path, ("packed", "labels", "ids"), "grid set", FORMAT_VERSION, "; rebuild it")
         packed, labels, ids = a["packed"], a["labels"], a["ids"]
@@ -122,7 +123,19 @@ class GridSet:
             raise DataError(path, f"corrupt grid set: labels must be integers, got {labels.dtype}")
         if labels.size and (labels.min() < 0 or labels.max() >= len(classes)):
             raise DataError(path, f"corrupt grid set: labels outside 0..{len(classes) - 1}")
+        unique_ids(ids, path)
         return cls(grids, labels, ids, tuple(classes), str(meta["split"]), meta)
+
+
+def unique_ids(ids, where) -> None:
+    """DataError naming ``where`` (a grid set's file, a dataset) when ``ids`` repeat one: a set is looked
+    up by id (:meth:`GridSet.rows_of`), and a repeated one would silently give another object's grid."""
+    names, counts = np.unique(np.asarray(ids).astype(str), return_counts=True)
+    if (counts > 1).any():
+        twice = [str(i) for i in names[counts > 1]]
+        raise DataError(where, f"{len(twice)} object id(s) appear more than once ({', '.join(twice[:5])}"
+                               f"{', ...' if len(twice) > 5 else ''}); each object needs an id of its own, "
+                               f"so lookups by id cannot return another object's grid")
 
 
 def record_grid(record: ObjectRecord, settings: dict = VOXEL_SETTINGS) -> np.ndarray:
@@ -224,6 +237,7 @@ def build_gridset(dataset: Dataset, records: list[ObjectRecord], split: str,
     """
     if any(r.split != split for r in records):
         raise ValueError(f"build_gridset: all records must be from split {split!r}")
+    unique_ids([r.id for r in records], dataset.name)     # before any work
     cdir = Path(cache) if cache is not None else config.cache_dir()
     if cdir.exists() and not cdir.is_dir():       # fail before any work, naming the setting's file
         raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(cdir))
