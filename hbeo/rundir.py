@@ -35,7 +35,7 @@ renamed (:mod:`hbeo.storage`), and a rendered set counts only once its manifest 
 
 Also owns the record of a batch's bad items (:func:`failure`, :meth:`RunDir.write_failures`,
 :func:`failure_summary`), which every batch step (voxelize, render, evaluate) shares.
-Imports only :mod:`hbeo.config` and :mod:`hbeo.storage`, so every layer may use it.
+Imports only :mod:`hbeo.config`, :mod:`hbeo.errors` and :mod:`hbeo.storage`, so every layer may use it.
 """
 from __future__ import annotations
 
@@ -45,7 +45,8 @@ import re
 from pathlib import Path
 
 from hbeo import config
-from hbeo.storage import atomic_text, json_text
+from hbeo.errors import DataError
+from hbeo.storage import atomic_text, json_text, json_type, read_json
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -60,6 +61,54 @@ PROVENANCE = "provenance.json"
 #: Written by a data-parallel run: every rank's final weights digest (they must agree).
 RANKS = "ranks.json"
 RENDER_MANIFEST = "manifest.json"
+
+#: The types of a run manifest's entries that the reports read, as :mod:`hbeo.report.provenance` writes them:
+#: ``text``, ``number``, ``int``, ``bool`` or ``list`` (``?`` after it: or null), or a dict (the entry must be a
+#: JSON object; its keys' types, ``*`` for each of its values). Keys not listed may hold anything.
+MANIFEST_TYPES = {
+    "profile": "text", "dataset": "text", "git_commit": "text?", "git_tag": "text?", "git_dirty": "bool?",
+    "code_version": "text?", "updated": "text?", "command": "text?", "one_commit": "bool?",
+    "wall_time_total_s": "number",
+    "profile_settings": {"name": "text", "image_size": "list", "conv_channels": "list", "fc": "list",
+                         "needs_gpu": "bool", "rotation": "text", "augment_roll": "bool", "shape_loss": "text",
+                         "class_balance": "text", **{k: "int?" for k in (
+                             "n_train_per_class", "n_test_per_class", "views_per_object", "epochs", "option_epochs",
+                             "eval_views", "voxcnn_epochs", "beo_so3_grid", "beo_1dof_test_per_class",
+                             "beo_3dof_test_per_class", "icp_test_per_class")}},
+    "versions": {"*": "text?"},
+    "hardware": {"cpu": "text?", "cores": "int?", "memory_gib": "number?", "gpu": "text?", "torch_threads": "int?",
+                 "cpu_capability": "text?", "platform": "text?"},
+    "seeds": {"training": "int", "evaluation": "int", "rendering": "int"},
+    "notebooks": {"*": {"wall_s": "number", "commit": "text?", "dirty": "bool?", "cpu": "text?"}},
+    "wall_time_s": {"*": "number?"},                     # the notebooks' wall times in older manifests
+    "training": {"*": {"model": "text", "epochs": "int?", "n_params": "int?", "resumed_from_step": "int?",
+                       "class_balance": "text?",
+                       "recipe": {"rotation": "text", "augment_roll": "bool", "shape_loss": "text",
+                                  "class_balance": "text"}}},
+}
+_MANIFEST_HINT = "; python -m hbeo reproduce writes it (make the run again, or restore the file from git)"
+_TYPE_WORDS = {"text": "text", "number": "a number", "int": "a whole number", "bool": "true/false",
+               "list": "a JSON list"}
+_TYPES = {"text": str, "number": (int, float), "int": int, "bool": bool, "list": list}
+
+
+def _check_types(value, spec, key: str, path) -> None:
+    """DataError naming ``path`` and ``key`` (dotted: ``notebooks.01_voxelize.wall_s``) where ``value`` is not of
+    the type ``spec`` says (:data:`MANIFEST_TYPES`)."""
+    if isinstance(spec, dict):
+        if not isinstance(value, dict):
+            raise DataError(path, f"key {key!r} holds {json_type(value)}, not a JSON object{_MANIFEST_HINT}")
+        for k, v in value.items():
+            sub = spec.get(k, spec.get("*"))
+            if sub is not None:
+                _check_types(v, sub, f"{key}.{k}" if key else k, path)
+        return
+    kind = spec.rstrip("?")
+    if value is None and spec.endswith("?"):
+        return
+    if not isinstance(value, _TYPES[kind]) or (isinstance(value, bool) and kind in ("number", "int")):
+        words = _TYPE_WORDS[kind] + (" or null" if spec.endswith("?") else "")
+        raise DataError(path, f"key {key!r} holds {json_type(value)}, not {words}{_MANIFEST_HINT}")
 
 
 def failure(file, reason: str, step: str, **extra) -> dict:
@@ -257,7 +306,19 @@ class RunDir:
 
     @property
     def manifest(self) -> Path:
+        """``manifest.json``: the run's provenance (:mod:`hbeo.report.provenance` writes it; read it with
+        :meth:`read_manifest`)."""
         return self.path / "manifest.json"
+
+    def read_manifest(self) -> dict:
+        """The run's :attr:`manifest` ({} when there is none), its entries' types checked
+        (:data:`MANIFEST_TYPES`): DataError naming the file, and the key, when it is not valid JSON or an
+        entry the reports read has another type (a hand-edited manifest) than the one its writer gives it."""
+        if not self.manifest.exists():
+            return {}
+        man = read_json(self.manifest, "run manifest", dict, _MANIFEST_HINT)
+        _check_types(man, MANIFEST_TYPES, "", self.manifest)
+        return man
 
     @property
     def reproduction(self) -> Path:

@@ -4,7 +4,8 @@ Owns how the project writes and reads its own data files, so that an interrupted
 leaves a file that looks complete, and no file is ever unpickled:
 
 - :func:`atomic_file` / :func:`atomic_text`: write to a temporary name, then rename (the file gets
-  the user's umask, as a plain ``open`` would give it);
+  the user's umask, as a plain ``open`` would give it); :func:`read_json`: a JSON file read back, a
+  :class:`~hbeo.errors.DataError` naming the file when it is truncated, damaged or of the wrong type;
 - :func:`sha256_file`: the content hash used by manifests and sidecars; :func:`tree_digest`: of a source tree
   (the code version in evaluation cache keys);
 - :func:`write_sidecar` / :func:`read_sidecar` / :func:`verify_sidecar`: a file's sha256 recorded
@@ -147,6 +148,41 @@ def json_text(obj, **kw) -> str:
         default = kw["default"]
         kw["default"] = lambda o: finite_json(default(o))
     return json.dumps(finite_json(obj), allow_nan=False, **kw)
+
+
+_JSON_TYPES = {dict: "a JSON object", list: "a JSON list"}
+
+
+def read_json(path, what: str = "JSON", kind: type | None = None, hint: str = ""):
+    """The value of the JSON file ``path``. DataError naming the file when it is not valid JSON (truncated,
+    damaged, not UTF-8) or, given ``kind`` (``dict`` or ``list``), holds another type; ``what`` names the file's kind in the message
+    (``"metrics"``: ``not a readable metrics file``), ``hint`` is appended (e.g. ``"; evaluate again"``). A
+    missing file or a folder is the OSError, which names the path (the command line prints it as one line)."""
+    path = Path(path)
+    data = path.read_bytes()
+    try:
+        value = json.loads(data)
+    except ValueError as err:            # JSONDecodeError, UnicodeDecodeError
+        why = "empty" if not data.strip() else f"{type(err).__name__}: {err}"
+        raise DataError(path, f"not a readable {what} file: not valid JSON ({why}); truncated or damaged?{hint}") \
+            from None
+    if kind is not None and not isinstance(value, kind):
+        raise DataError(path, f"not a {what} file: it holds {json_type(value)}, not {_JSON_TYPES.get(kind, kind)}"
+                              f"{hint}")
+    return value
+
+
+def json_type(value) -> str:
+    """What a JSON value is, in words for a message: ``a JSON object``, ``text ('x')``, ``a number (3)``, ..."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"true/false ({str(value).lower()})"
+    if isinstance(value, (int, float)):
+        return f"a number ({value!r})"
+    if isinstance(value, str):
+        return f"text ({value[:40]!r})"
+    return _JSON_TYPES.get(type(value), type(value).__name__)
 
 
 def atomic_text(path, text: str) -> None:

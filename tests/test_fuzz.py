@@ -25,6 +25,7 @@ import errno
 import contextlib
 import hashlib
 import io
+import json
 import os
 import tempfile
 import warnings
@@ -679,6 +680,67 @@ def test_report_refuses_what_is_not_a_finished_run(tmp_path, case):
             "manifest only": "04_train.ipynb"}[case]
     assert str(run) in line and want in line, line
     assert not (tmp_path / "run" / "REPRODUCTION.md").exists()
+
+
+def _finished_run(run: Path, **manifest) -> Path:
+    """The least a finished run holds (a manifest recording a profile and one executed notebook, and that
+    notebook), the manifest's entries ``manifest`` changed."""
+    run.mkdir(exist_ok=True)
+    man = {"profile": "ci", "dataset": "procedural", "notebooks": {"01_voxelize": {"wall_s": 1.0}}, **manifest}
+    (run / "manifest.json").write_text(json.dumps(man))
+    (run / "01_voxelize.ipynb").write_text("{}")
+    return run
+
+
+#: the resolution study's files REPRODUCTION.md reads (hbeo.report.reproduction_md.RESOLUTION_FILES), valid
+_RESOLUTION = {"eval_val-basis143-e10.json": {"class_mean_accuracy": 0.5},
+               **{f: {"class_mean_accuracy": 0.4} for f in ("eval_val-res120-e10.json", "eval_val-res160-e10.json")},
+               **{f: {"contrasts": {"class_accuracy": {"value": -0.1, "low": -0.2, "high": 0.0, "n_objects": 9}}}
+                  for f in ("res120-e10_vs_basis143-e10_val.json", "res160-e10_vs_basis143-e10_val.json")}}
+
+
+@pytest.mark.parametrize("name", ["eval_hbeo_3dof.json", "res160-e10_vs_basis143-e10_val.json", "manifest.json"])
+def test_report_names_a_truncated_json_file(tmp_path, name):
+    """A truncated or damaged JSON file of the run: one line naming it, never json's bare words; nothing written."""
+    run = _finished_run(tmp_path / "run")
+    for f, content in _RESOLUTION.items():
+        (run / f).write_text(json.dumps(content))
+    (run / "eval_hbeo_3dof.json").write_text(json.dumps({"completion_rule": None, "views": 3, "seed": 0,
+                                                         "per_query": {"object": ["a"] * 40}}, indent=1))
+    whole = (run / name).read_text()
+    (run / name).write_text(whole[: len(whole) // 2])                      # cut off mid-way, as a full disk leaves it
+    line = cli_error(["report", "--run", str(run), "--out", str(tmp_path / "r.md")])
+    assert line.startswith(f"{run / name}: ") and "not valid JSON" in line, line
+    assert not (tmp_path / "r.md").exists()
+
+
+def test_completion_decomposition_names_a_truncated_evaluation(tmp_path):
+    run = _finished_run(tmp_path / "run")
+    (run / "eval_beo_known.json").write_text(json.dumps({"per_query": {}}))
+    (run / "eval_hbeo_3dof.json").write_text('{"dataset": "procedural", "views": 3, "se')
+    line = cli_error(["report", "--completion-decomposition", str(run)])
+    assert line.startswith(f"{run / 'eval_hbeo_3dof.json'}: not a readable metrics file: not valid JSON"), line
+
+
+@pytest.mark.parametrize("change, key", [
+    (dict(profile_settings="x"), "'profile_settings' holds text ('x'), not a JSON object"),
+    (dict(profile_settings=None), "'profile_settings' holds null, not a JSON object"),
+    (dict(hardware=[2]), "'hardware' holds a JSON list, not a JSON object"),
+    (dict(hardware={"cores": "two"}), "'hardware.cores' holds text ('two'), not a whole number or null"),
+    (dict(seeds={"training": "0"}), "'seeds.training' holds text ('0'), not a whole number"),
+    (dict(notebooks={"01_voxelize": {"wall_s": "1.0"}}), "'notebooks.01_voxelize.wall_s' holds text ('1.0')"),
+    (dict(notebooks={"01_voxelize": 60}), "'notebooks.01_voxelize' holds a number (60), not a JSON object"),
+    (dict(training={"model.hbeo": {"n_params": True}}), "'training.model.hbeo.n_params' holds true/false (true)"),
+    (dict(wall_time_total_s="long"), "'wall_time_total_s' holds text ('long'), not a number"),
+    (dict(profile=3), "'profile' holds a number (3), not text"),
+])
+def test_report_names_a_wrong_typed_manifest_entry(tmp_path, change, key):
+    """A hand-edited manifest whose entry has another type than its writer gives it: one line naming
+    manifest.json and the key, never an AttributeError from deep inside the report; nothing written."""
+    run = _finished_run(tmp_path / "run", **change)
+    line = cli_error(["report", "--run", str(run), "--out", str(tmp_path / "r.md")])
+    assert line.startswith(f"{run / 'manifest.json'}: key {key}"), line
+    assert not (tmp_path / "r.md").exists()
 
 
 def test_reproduce_only_refuses_unknown_notebooks(tmp_path):

@@ -1,12 +1,14 @@
 import hashlib
 import logging
 import os
+import re
 import stat
 
 import numpy as np
 import pytest
 
-from hbeo.storage import (atomic_file, atomic_text, pack_bits, read_sidecar, sidecar_path, unpack_bits,
+from hbeo.errors import DataError
+from hbeo.storage import (atomic_file, atomic_text, pack_bits, read_json, read_sidecar, sidecar_path, unpack_bits,
                           verify_sidecar, write_npz, write_sidecar)
 
 
@@ -134,3 +136,20 @@ def test_a_link_is_written_through_and_a_pipe_in_place(tmp_path):
     reader.join(timeout=10)
     assert got == ["through the pipe"] and stat.S_ISFIFO(fifo.stat().st_mode)
     assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+
+
+@pytest.mark.parametrize("text, problem", [
+    ('{"a": [1, 2', r"not a readable metrics file: not valid JSON \(JSONDecodeError: Expecting"),
+    ("", r"not valid JSON \(empty\)"),
+    (b'{"a": "\xff"}', r"not valid JSON \(UnicodeDecodeError"),
+    ("[1, 2]", r"not a metrics file: it holds a JSON list, not a JSON object"),
+    ('"text"', r"it holds text \('text'\), not a JSON object"),
+])
+def test_read_json_names_the_file_and_the_problem(tmp_path, text, problem):
+    path = tmp_path / "eval_x.json"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(DataError, match=f"^{re.escape(str(path))}: .*{problem}") as err:
+        read_json(path, "metrics", dict)
+    assert err.value.path == str(path)
+    (tmp_path / "ok.json").write_text('{"a": [1, null]}')
+    assert read_json(tmp_path / "ok.json", kind=dict) == {"a": [1, None]}

@@ -12,7 +12,6 @@ May import: foundation, model, run, evaluation and :mod:`hbeo.report.tables`.
 """
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
@@ -21,7 +20,7 @@ import pandas as pd
 from hbeo.model.completion_rule import NONEMPTY_THRESHOLD
 from hbeo.report import tables as T
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, read_json
 
 #: the table's name in a run folder (``.csv`` and ``.md``)
 NAME = "06_completion_decomposition"
@@ -36,12 +35,17 @@ def write_decomposition(run, progress: bool = True) -> list:
     from hbeo.model.inference import HBEO
     from hbeo.run import load_dataset
     run = RunDir.of(run)
-    evals = {k: json.loads(run.evaluation(*mp).read_text()) if run.evaluation(*mp).exists() else None
+    evals = {k: read_json(run.evaluation(*mp), "metrics", dict) if run.evaluation(*mp).exists() else None
              for k, mp in (("hbeo", ("hbeo", "3dof")), ("beo", ("beo", "known")), ("voxcnn", ("voxcnn", "known")))}
     if evals["hbeo"] is None or evals["beo"] is None:
         raise FileNotFoundError(f"{run.path}: needs eval_hbeo_3dof.json and eval_beo_known.json (notebook 06)")
     model = HBEO.load(run.model)
     h = evals["hbeo"]
+    lacking = [k for k in ("dataset", "views", "seed") if h.get(k) is None]
+    if lacking:
+        from hbeo.errors import DataError
+        raise DataError(run.evaluation("hbeo", "3dof"), f"records no {', '.join(lacking)}: not a metrics file of "
+                                                          "python -m hbeo evaluate (evaluate again)")
     ds = load_dataset(h["dataset"], model.settings.profile or "cpu")
     views, seed = int(h["views"]), int(h["seed"])
     # the test objects the evaluation files scored (the profile's first objects of each class, or all)

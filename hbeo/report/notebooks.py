@@ -124,14 +124,14 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
 
 def check_run_folder(run, profile: str, dataset: str, training_seed: int) -> None:
     """HBEOError when the manifest of the run folder ``run`` records another profile, dataset or training seed
-    than asked: its models, evaluations and tables would mix two runs' (a folder without a manifest takes any)."""
-    import json
+    than asked: its models, evaluations and tables would mix two runs' (a folder without a manifest takes any;
+    one that is not valid JSON or has entries of the wrong type: DataError naming it, :meth:`RunDir.read_manifest`)."""
     from hbeo.errors import HBEOError
     run = RunDir.of(run)
     if not run.manifest.is_file():
         return
-    m = json.loads(run.manifest.read_text())
-    recorded = (m.get("seeds") or {}).get("training", 0)
+    m = run.read_manifest()
+    recorded = m.get("seeds", {}).get("training", 0)
     if recorded != training_seed:
         raise HBEOError(f"{run.manifest}: the run's models were trained with training seed {recorded}, not "
                         f"{training_seed}; pass --seed {recorded}, or --fresh to train them all again, or another --out")

@@ -14,7 +14,6 @@ May import: foundation and :mod:`hbeo.evaluation.protocol` (torch only to descri
 """
 from __future__ import annotations
 
-import json
 import os
 import platform
 import subprocess
@@ -26,7 +25,7 @@ from hbeo import __version__
 from hbeo import config
 from hbeo.evaluation.protocol import SEED
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_text, json_text
+from hbeo.storage import atomic_text, json_text, read_json
 
 #: The packages whose versions a manifest records (beside Python and hbeo).
 PACKAGES = ("numpy", "scipy", "torch", "trimesh", "scikit-learn", "scikit-image", "pandas", "matplotlib",
@@ -99,7 +98,7 @@ def training_records(run) -> dict:
     (:meth:`hbeo.run.Run.train`)."""
     out = {}
     for p in RunDir.of(run).training_provenances():
-        rec = json.loads(p.read_text())
+        rec = read_json(p, "training record", dict)
         out[rec.get("model", p.parent.name)] = rec
     return out
 
@@ -118,7 +117,7 @@ def write_manifest(run, profile: str, dataset: str, wall_s: dict | None = None, 
     recorded before. ``run``: a RunDir or a path. Returns the manifest."""
     from hbeo.evaluation.protocol import code_version
     run = RunDir.of(run)
-    old = {} if fresh or not run.manifest.exists() else json.loads(run.manifest.read_text())
+    old = {} if fresh else run.read_manifest()          # not JSON or a wrong type: DataError naming it
     git, hw = git_state(), hardware()
     nbs = dict(old.get("notebooks", {}))
     for name, sec in (wall_s or {}).items():

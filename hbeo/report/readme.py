@@ -16,14 +16,14 @@ or the data file. May import: foundation and the other reproduction modules.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from hbeo import config
+from hbeo.errors import DataError
 from hbeo.report import seeds, tables as T
 from hbeo.report.provenance import commit_line
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, read_json
 
 PAPER = config.REPO_ROOT / "paper"
 
@@ -78,7 +78,8 @@ def paper_scale(run) -> tuple[dict, "object"] | None:
     if not (lease.exists() and ev.exists()):
         return None
     stats = ["class_accuracy", *(stat for _, stat, _ in VERDICT_HBEO)]
-    return json.loads(lease.read_text()), estimates_of(json.loads(ev.read_text()), stats).set_index("statistic")
+    return (read_json(lease, "lease record", dict),
+            estimates_of(read_json(ev, "metrics", dict), stats).set_index("statistic"))
 
 
 def _spread_line(run, man: dict) -> list[str]:
@@ -103,7 +104,7 @@ def summary(run) -> str:
     it (:func:`_spread_line`): nothing typed by hand."""
     import pandas as pd
     run = RunDir.of(run)
-    man = json.loads(run.manifest.read_text()) if run.manifest.exists() else {}
+    man = run.read_manifest()
     parts = [pd.read_csv(run.table(n)) for n in (T.ACCURACY_CI, T.POSE_CI, T.COMPLETION_CI)
              if run.table(n).exists()]
     if not parts:
@@ -211,7 +212,9 @@ def command_entries(path=COMMANDS) -> list[dict]:
     values null or positive numbers (``disk`` null or a text such as ``1.2 GB``), a ``measured`` date and a
     ``source`` wherever a value is given. ValueError naming the entry and the key otherwise."""
     path = Path(path)
-    entries = json.loads(path.read_text())["commands"]
+    entries = read_json(path, "command table", dict).get("commands")
+    if not isinstance(entries, list):
+        raise DataError(path, "no list of commands (a JSON object with the key 'commands')")
     for e in entries:
         name = e.get("command", "?")
         missing = [k for k in COMMAND_KEYS if k not in e]

@@ -18,15 +18,15 @@ May import: foundation and the other reproduction modules.
 """
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 from hbeo import config
+from hbeo.errors import DataError
 from hbeo.report import completion_gap, readings, seeds, tables as T
 from hbeo.report.provenance import commit_line, reproduce_command
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_text
+from hbeo.storage import atomic_text, read_json
 
 PAPER = config.REPO_ROOT / "paper"
 #: (profile, dataset) of the committed reference run, whose report is ``paper/REPRODUCTION.md``.
@@ -213,7 +213,7 @@ def _completion_line(run) -> str:
     ``completion_rule``, absent: the paper's) and HBEO's default rule."""
     from hbeo.model.completion_rule import NONEMPTY, of_record
     path = RunDir.of(run).evaluation("hbeo", "3dof") if run is not None else None
-    used = of_record(json.loads(path.read_text()).get("completion_rule")) if path and path.exists() else None
+    used = of_record(read_json(path, "metrics", dict).get("completion_rule")) if path and path.exists() else None
     head = ("- **Completion rule.** The paper keeps the voxels whose back-projection reaches 0.5, which can leave a "
             "completion empty. HBEO's default completes never empty (`hbeo.model.completion_rule`: back-projection "
             f">= {NONEMPTY.threshold:g}, a threshold chosen on validation, else the predicted class's mean-shape "
@@ -233,6 +233,17 @@ RESOLUTION_FILES = (("80×60", "eval_val-basis143-e10.json", None),
                     ("160×120", "eval_val-res160-e10.json", "res160-e10_vs_basis143-e10_val.json"))
 
 
+def _entry(path: Path, *keys, kind=dict):
+    """The value at ``keys`` in the JSON file ``path`` (a metrics or paired-comparison file), of type ``kind``;
+    DataError naming the file when it is not valid JSON or lacks the entry."""
+    value = read_json(path, "metrics")
+    for k in keys:
+        value = value.get(k) if isinstance(value, dict) else None
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise DataError(path, f"no {'.'.join(keys)} entry of the right type (not a metrics file of this hbeo?)")
+    return value
+
+
 def _resolution_line(run) -> list[str]:
     """The resolution study's deviation line, from its validation files (none: no line): the class mean at each
     image size after the same 10 epochs, the paired difference against 80x60 with its interval."""
@@ -241,11 +252,11 @@ def _resolution_line(run) -> list[str]:
         return []
     parts = []
     for size, f, paired in RESOLUTION_FILES:
-        cm = 100 * json.loads((d / f).read_text())["class_mean_accuracy"]
+        cm = 100 * _entry(d / f, "class_mean_accuracy", kind=(int, float))
         if paired is None:
             parts.append(f"{size} {cm:.1f} %")
             continue
-        c = json.loads((d / paired).read_text())["contrasts"]["class_accuracy"]
+        c = _entry(d / paired, "contrasts", "class_accuracy")
         parts.append(f"{size} {cm:.1f} % ({100 * c['value']:+.1f} points [{100 * c['low']:+.1f}, "
                      f"{100 * c['high']:+.1f}], {c['n_objects']} objects)")
     return ["- **Image size.** Is 80×60 the gap? The same recipe for 10 epochs at three sizes (the camera scaled, the "
@@ -257,7 +268,6 @@ def check_finished_run(run) -> RunDir:
     """``run`` as a RunDir if it is a finished run folder: a folder whose ``manifest.json`` (written by
     ``python -m hbeo reproduce``) records the profile and the executed notebooks, each of them there. Else
     DataError naming the folder (or the manifest) and what is missing."""
-    from hbeo.errors import DataError
     path = RunDir.of(run).path
     if not path.exists():
         raise DataError(path, "no such run folder")
@@ -266,11 +276,8 @@ def check_finished_run(run) -> RunDir:
     run = RunDir.of(run)
     if not run.manifest.is_file():
         raise DataError(path, "not a finished run: no manifest.json (python -m hbeo reproduce writes it)")
-    try:
-        man = json.loads(run.manifest.read_text())
-    except (OSError, ValueError) as err:
-        raise DataError(run.manifest, f"unreadable manifest ({type(err).__name__}: {err})") from None
-    done = man.get("notebooks") if isinstance(man, dict) else None
+    man = run.read_manifest()                   # not JSON, or an entry of another type: DataError naming it
+    done = man.get("notebooks")
     if not isinstance(done, dict) or not done or not man.get("profile"):
         raise DataError(run.manifest, "records no executed notebook or no profile: not a finished run "
                                       "(python -m hbeo reproduce writes it)")
@@ -293,7 +300,7 @@ def reproduction_text(run, out: Path) -> str:
     """The Markdown of ``REPRODUCTION.md`` for a file at ``out`` (links are relative to its folder)."""
     run = RunDir.of(run)
     out = Path(out)
-    man = json.loads(run.manifest.read_text()) if run.manifest.exists() else {}
+    man = run.read_manifest()
 
     def link(path: Path) -> str:
         return os.path.relpath(path, out.parent)

@@ -38,6 +38,7 @@ from hbeo.evaluation.paired import LEVEL, N_BOOT
 from hbeo.evaluation.protocol import COMPLETION, EVALUATIONS, POSE, TABLE1
 from hbeo.report import tables
 from hbeo.rundir import RunDir
+from hbeo.storage import read_json
 
 
 #: statistic of :data:`hbeo.evaluation.intervals.STATISTICS` -> (what the table calls it, the settings
@@ -75,11 +76,8 @@ def read_run(run) -> SeedRun:
     if not run.manifest.is_file():
         raise DataError(run.manifest, "missing: not a run folder of python -m hbeo reproduce (its manifest "
                                       "names the profile, dataset and training seed)")
-    try:
-        man = json.loads(run.manifest.read_text())
-    except (OSError, ValueError) as err:
-        raise DataError(run.manifest, f"unreadable ({type(err).__name__}: {err})") from None
-    seed = (man.get("seeds") or {}).get("training") if isinstance(man, dict) else None
+    man = run.read_manifest()                  # not JSON, or an entry of the wrong type: DataError naming it
+    seed = man.get("seeds", {}).get("training")
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0 or not man.get("profile") \
             or not man.get("dataset"):
         raise DataError(run.manifest, "records no profile, dataset or training seed (seeds.training)")
@@ -102,10 +100,7 @@ def _check_runs(runs: list[SeedRun]) -> None:
 
 def _evaluation(run: SeedRun, method: str, pose: str) -> dict:
     path = run.dir.evaluation(method, pose)
-    try:
-        m = json.loads(path.read_text())
-    except (OSError, ValueError) as err:
-        raise DataError(path, f"unreadable ({type(err).__name__}: {err})") from None
+    m = read_json(path, "metrics")
     if not isinstance(m, dict) or not (m.get("per_query") or {}).get("object"):
         raise DataError(path, "no per-query object ids (a file older than the paired protocol): evaluate again")
     return m
