@@ -100,6 +100,59 @@ def test_rebuild_drops_pages_of_notebooks_gone(run_folder):
     assert not (out / "02_other.html").exists() and not (out / "figures" / "05_confusion.png").exists()
 
 
+def _files(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_failed_rebuild_leaves_the_earlier_book_as_it_was(run_folder, capsys):
+    """One notebook unreadable: no page of the new run joins the earlier book's index, and no partial book is left
+    (the book is built beside it and renamed into place only when whole)."""
+    book.build_book(run_folder)
+    out = run_folder / book.BOOK_DIR
+    before = _files(out)
+    nb = nbformat.read(run_folder / "01_tiny.ipynb", as_version=4)
+    nb.cells[0].source = "# 01 · the notebook of another run"
+    nbformat.write(nb, run_folder / "01_tiny.ipynb")                 # its page is built before 02's fails
+    (run_folder / "02_other.ipynb").write_text('{"cells": [{"cell_type": "mark')
+    (run_folder / "06_new.png").write_bytes(_png(20, 10))
+    assert cli.main(["book", str(run_folder)]) == 2
+    assert _files(out) == before
+    assert sorted(p.name for p in run_folder.iterdir() if p.name.startswith(".")) == []      # no partial book
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {run_folder / '02_other.ipynb'}: unreadable notebook") and "left as it was" in err
+
+
+def test_a_failed_first_build_leaves_no_book(run_folder, tmp_path):
+    (run_folder / "02_other.ipynb").write_text("not a notebook")
+    with pytest.raises(DataError) as err:
+        book.build_book(run_folder, tmp_path / "site")
+    assert not (run_folder / book.BOOK_DIR).exists() and sorted(p.name for p in tmp_path.iterdir()) == ["ci-procedural"]
+    assert "02_other.ipynb: unreadable notebook" in str(err.value) and "no book written" in str(err.value)
+
+
+def test_a_folder_that_is_not_a_book_is_never_replaced(run_folder, tmp_path):
+    """The book replaces the folder it is written to: one holding anything else (the run folder itself, a user's
+    notes) is refused and left as it was."""
+    (tmp_path / "site").mkdir()
+    (tmp_path / "site" / "notes.txt").write_text("mine")
+    for out in (tmp_path / "site", run_folder):
+        before = _files(out)
+        with pytest.raises(DataError, match="not a book of hbeo's"):
+            book.build_book(run_folder, out)
+        assert _files(out) == before
+    book.build_book(run_folder, tmp_path / "empty")                  # a new folder, and an earlier book, are fine
+    assert (tmp_path / "empty" / "index.html").is_file()
+    book.build_book(run_folder, tmp_path / "empty")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ci-procedural", "empty", "site"]
+
+
+def test_a_damaged_manifest_is_named(run_folder):
+    (run_folder / "manifest.json").write_text('{"profile": "ci", "hardware": "laptop"}')
+    with pytest.raises(DataError, match=r"manifest.json: key 'hardware' holds text \('laptop'\)"):
+        book.build_book(run_folder)
+    assert not (run_folder / book.BOOK_DIR).exists()
+
+
 def test_remote_references_finds_what_would_load():
     page = ('<script src="https://cdn.example/x.js"></script><link rel="stylesheet" href="//cdn.example/a.css">'
             '<style>@import url("http://x/y.css"); .a { background: url(https://x/bg.png) }</style>'

@@ -20,20 +20,18 @@ a page would still fetch from the network (``src``, ``<link href>``, CSS ``url()
 links: they load nothing.
 
 Command line: ``python -m hbeo.report.book RUN [OUT]`` (``make book PROFILE=cpu DATASET=procedural``).
-Files are written atomically (:mod:`hbeo.storage`).
+The book is written atomically, as one folder (:func:`build_book`).
 
 May import: foundation (nbconvert, nbformat, latex2mathml and Pillow lazily).
 """
 from __future__ import annotations
 
 import html
-import json
 import re
 from pathlib import Path
 
 from hbeo.errors import DataError
 from hbeo.rundir import RunDir
-from hbeo.storage import atomic_bytes, atomic_text
 
 #: The book's folder inside a run (``RUN/book/``) and its figures' subfolder.
 BOOK_DIR, FIGURES_DIR = "book", "figures"
@@ -186,14 +184,6 @@ def _is_figure(png: Path) -> bool:
         return False
 
 
-def _manifest(run: RunDir) -> dict:
-    try:
-        m = json.loads(run.manifest.read_text())
-    except (OSError, ValueError):
-        return {}
-    return m if isinstance(m, dict) else {}
-
-
 def notebook_wall_s(manifest: dict) -> dict[str, float]:
     """{notebook stem: wall seconds} from a run's manifest (``notebooks`` entries, or the older
     ``wall_time_s`` map)."""
@@ -251,43 +241,98 @@ def _index_html(title: str, run: RunDir, manifest: dict, pages: list[tuple[str, 
     return "\n".join(parts)
 
 
+def _is_book(folder: Path) -> bool:
+    """Whether ``folder`` holds nothing but what :func:`build_book` writes (``index.html``, ``NN_name.html``,
+    ``figures/*.png``, temporaries ``.*.tmp``): a folder it may replace. Not a run folder, nor one with a user's
+    files."""
+    def ours(p: Path, names) -> bool:
+        return p.name.startswith(".") and p.name.endswith(".tmp") or any(p.match(n) for n in names)
+    for p in folder.iterdir():
+        if p.is_dir() and not p.is_symlink() and p.name == FIGURES_DIR:
+            if not all(q.is_file() and ours(q, ["*.png"]) for q in p.iterdir()):
+                return False
+        elif not (p.is_file() and ours(p, ["index.html", "[0-9][0-9]_*.html"])):
+            return False
+    return True
+
+
+def _replace_folder(new: Path, out: Path) -> None:
+    """Put the finished folder ``new`` where ``out`` is (a sibling): renamed into place, an earlier ``out`` moved
+    aside first and removed once ``new`` stands there (moved back if that rename fails)."""
+    import shutil
+    if not out.exists():
+        new.rename(out)
+        return
+    old = out.with_name(f"{new.name}.old")
+    out.rename(old)
+    try:
+        new.rename(out)
+    except BaseException:
+        old.rename(out)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
 def build_book(run, out_dir=None) -> Path:
     """Write the book of run folder ``run`` (RunDir or path) into ``out_dir`` (default ``RUN/book/``; see the
     module docstring for what it holds) and return its ``index.html``. DataError when ``run`` has no executed
-    notebook or a page would load anything from the network. Pages of notebooks no longer in the run and
-    figures no longer there are removed from ``out_dir``."""
+    notebook, a notebook cannot be read, its manifest is damaged (:meth:`~hbeo.rundir.RunDir.read_manifest`), a
+    page would load anything from the network, or ``out_dir`` holds anything but an earlier book.
+
+    The whole book is built in a hidden sibling folder (``.book.XXXX.tmp``) and renamed into place only when every
+    page is written, replacing the earlier book: a failure leaves that book as it was and no partial one (never
+    pages of two runs under one index). Pages of notebooks no longer in the run and figures no longer there are
+    gone with the earlier book."""
+    import os
+    import shutil
+    import tempfile
+    from hbeo.storage import current_umask
     run = RunDir.of(run)
     notebooks = sorted(run.path.glob(NOTEBOOK_GLOB))
     if not notebooks:
         raise DataError(run.path, "no executed notebooks (NN_name.ipynb) in this run folder; "
                                   "run `python -m hbeo reproduce` first")
     out = Path(out_dir) if out_dir is not None else run.path / BOOK_DIR
-    manifest = _manifest(run)
+    target = Path(os.path.abspath(out))
+    if target.exists() and (not target.is_dir() or target.is_symlink() or not _is_book(target)):
+        raise DataError(target, "holds files that are not a book of hbeo's (a book replaces the folder it is "
+                                "written to): name a new or empty folder, or an earlier book")
+    manifest = run.read_manifest()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    try:
+        os.chmod(stage, 0o777 & ~current_umask())          # as a plain mkdir makes it (mkdtemp: 0700)
+        _write_book(run, notebooks, manifest, stage)
+        _replace_folder(stage, target)
+    except DataError as err:
+        shutil.rmtree(stage, ignore_errors=True)
+        left = f"the book in {out} is left as it was" if target.exists() else "no book written"
+        raise DataError(err.path, f"{err.problem} ({left})") from None
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    return out / "index.html"
+
+
+def _write_book(run: RunDir, notebooks: list[Path], manifest: dict, out: Path) -> None:
+    """Every page, figure and the index of the book into the (new, empty) folder ``out``."""
+    import shutil
     title = f"hbeo run {run.name}"
     exporter = _exporter()
     pages = []
     for nb in notebooks:
         href = f"{nb.stem}.html"
-        atomic_text(out / href, notebook_page(nb, title, exporter))
+        (out / href).write_text(notebook_page(nb, title, exporter), encoding="utf-8")
         pages.append((nb.stem, href))
     pngs = sorted(run.path.glob("*.png"))
     figures = [p for p in pngs if _is_figure(p)]
     for p in figures:
-        atomic_bytes(out / FIGURES_DIR / p.name, p.read_bytes())
+        (out / FIGURES_DIR).mkdir(exist_ok=True)
+        shutil.copyfile(p, out / FIGURES_DIR / p.name)
     tables = sorted(run.path.glob("*.md"))
     index = _index_html(title, run, manifest, pages, tables, [p.name for p in figures],
                         [p.name for p in pngs if p not in figures])
     remote = remote_references(index)
     if remote:
         raise DataError(run.path, f"the book's index would load resources from the network, e.g. {remote[0]!r}")
-    atomic_text(out / "index.html", index)
-    keep = {href for _, href in pages} | {"index.html"}
-    for old in out.glob("[0-9][0-9]_*.html"):
-        if old.name not in keep:
-            old.unlink()
-    names = {p.name for p in figures}
-    for old in (out / FIGURES_DIR).glob("*.png"):
-        if old.name not in names:
-            old.unlink()
-    return out / "index.html"
-
+    (out / "index.html").write_text(index, encoding="utf-8")
