@@ -459,3 +459,156 @@ def test_a_subspace_file_lacking_a_key_is_one_data_error(files, tmp_path):
     with pytest.raises(DataError) as err:
         ObjectSubspace.load(io.BytesIO(bad.read_bytes()))
     assert err.value.path is None and str(err.value).startswith("not a valid subspace file")
+
+
+# ------------------------------------------------------------------ meta.json values nothing later can use
+
+def _meta_text(src, dst, old: str, new: str):
+    """``src`` with one piece of its meta.json's text replaced (what json.dumps cannot write: 1e400, a
+    repeated key)."""
+    text = members(src)["meta.json"].decode()
+    assert old in text, old
+    return rewrite(src, dst, {"meta.json": text.replace(old, new, 1).encode()})
+
+
+def _set(*keys_value):
+    *keys, value = keys_value
+
+    def fn(meta):
+        d = meta
+        for k in keys[:-1]:
+            d = d[k]
+        d[keys[-1]] = value
+    return fn
+
+
+BAD_META = {
+    # name: (edit(src, dst) -> dst, the field and problem the one line must name)
+    "width a float": (lambda s, d: edit_meta(s, d, _set("intrinsics", "width", 32.0)),
+                      "meta.json: intrinsics.width must be a whole positive number of pixels, got 32.0"),
+    "height zero": (lambda s, d: edit_meta(s, d, _set("intrinsics", "height", 0)), "intrinsics.height must be"),
+    "fx infinite": (lambda s, d: _meta_text(s, d, '"fx": ', '"fx": 1e400, "fx_": '), "intrinsics.fx is not a finite"),
+    "render shift a string": (lambda s, d: edit_meta(s, d, _set("settings", "render", {"shift": "x"})),
+                              "meta.json: settings: render: shift must be a number, got str 'x'"),
+    "render distance a word": (lambda s, d: edit_meta(s, d, _set("settings", "render", {"distance": "far"})),
+                               "settings: render: distance must be a pair of numbers, got 'far'"),
+    "render distance digits": (lambda s, d: edit_meta(s, d, _set("settings", "render", {"distance": "12"})),
+                               "settings: render: distance must be a pair of numbers"),
+    "render distance negative": (lambda s, d: edit_meta(s, d, _set("settings", "render", {"distance": [-2, -1]})),
+                                 "settings: render: distance must be finite metres with 0 < min <= max"),
+    "render unknown key": (lambda s, d: edit_meta(s, d, _set("settings", "render", {"shift": 0.05, "fizz": 1})),
+                           "settings: render: unknown keys fizz"),
+    "render views a float": (lambda s, d: edit_meta(s, d, _set("settings", "render", {"views_per_object": 2.5})),
+                             "settings: render: views_per_object must be an integer"),
+    "coefficients of another length": (
+        lambda s, d: edit_meta(s, d, lambda m: m["settings"].update(coeff_mean=[0.0] * 5, coeff_std=[1.0] * 5)),
+        "settings: coeff_mean has 5 values for a network with"),
+    "class counts of another length": (lambda s, d: edit_meta(s, d, _set("settings", "class_counts", [1, 2, 3])),
+                                       "meta.json: settings: class_counts has 3 entries for 2 classes"),
+    "object size infinite": (lambda s, d: _meta_text(s, d, '"object_size": 1.0', '"object_size": 1e400'),
+                             "meta.json: settings.object_size is not a finite number"),
+    "ref distance infinite": (lambda s, d: _meta_text(s, d, '"ref_distance": 1.7', '"ref_distance": 1e400'),
+                              "meta.json: settings.ref_distance is not a finite number"),
+    "unknown profile": (lambda s, d: edit_meta(s, d, _set("settings", "profile", "nosuch")),
+                        "settings: profile must be a profile name"),
+    "profile a list": (lambda s, d: edit_meta(s, d, _set("settings", "profile", ["ci"])),
+                       "settings: profile must be a profile name (one of ci, cpu"),
+    "unknown shape loss": (lambda s, d: edit_meta(s, d, _set("settings", "shape_loss", "nosuch")),
+                           "settings: shape_loss must be one of coeffs, voxels"),
+    "a repeated key": (lambda s, d: _meta_text(s, d, '"recenter": true', '"recenter": false, "recenter": true'),
+                       "meta.json is not JSON (key \"recenter\" appears twice in one object)"),
+    "an empty class name": (lambda s, d: edit_meta(s, d, lambda m: m["classes"].__setitem__(0, "")),
+                            "meta.json: classes[0] must be a class name"),
+    "a repeated class name": (lambda s, d: edit_meta(s, d, lambda m: m["classes"].__setitem__(1, m["classes"][0])),
+                              "\"classes\" must be distinct class names; 'chair' appears twice"),
+    "a class the subspace lacks": (lambda s, d: edit_meta(s, d, lambda m: m["classes"].__setitem__(0, "zebra")),
+                                   "meta.json: classes 'zebra' are not classes of subspace.npz"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_META))
+def test_meta_values_nothing_later_can_use_are_one_line_naming_file_and_field(files, tmp_path, case):
+    make, problem = BAD_META[case]
+    bad = make(files["hbeo"], tmp_path / f"bad_{case.replace(' ', '_')}.hbeo")
+    with pytest.raises(DataError) as err:
+        HBEO.load(bad)
+    msg = str(err.value)
+    assert msg.startswith(f"{bad}: ") and problem in msg and "\n" not in msg, msg
+
+
+def test_a_repeated_key_or_an_infinite_number_is_refused_in_a_voxcnn_file_too(files, tmp_path):
+    bad = _meta_text(files["voxcnn"], tmp_path / "dup.hbeo", '"profile": "ci"', '"profile": "ci", "profile": "x"')
+    with pytest.raises(DataError, match=r"dup\.hbeo: meta\.json is not JSON \(key \"profile\" appears twice"):
+        VoxCNNBaseline.load(bad)
+    bad = _meta_text(files["voxcnn"], tmp_path / "inf.hbeo", '"iou": 0.25', '"iou": 1e400')
+    with pytest.raises(DataError, match=r"inf\.hbeo: meta\.json: settings\.final\.iou is not a finite number"):
+        VoxCNNBaseline.load(bad)
+
+
+@pytest.mark.parametrize("case", ["width a float", "render shift a string", "render distance negative",
+                                  "object size infinite", "an empty class name"])
+def test_predict_with_an_unusable_meta_value_exits_2_naming_the_file(files, tmp_path, capsys, case):
+    from hbeo.cli import main
+    make, problem = BAD_META[case]
+    bad = make(files["hbeo"], tmp_path / "bad.hbeo")
+    d = tmp_path / "d.npy"
+    np.save(d, depth_images()[1])
+    out = tmp_path / "r.json"
+    code = main(["predict", "--model", str(bad), "--depth", str(d), "--intrinsics", "30,30,16,12", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"error: {bad}: ") and problem in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_writing_refuses_what_reading_would(hbeo_model, tmp_path):
+    """The one check runs before a file is written: a model whose settings its file could not hold is not saved."""
+    m = HBEO(hbeo_model.net, hbeo_model.subspace, K, hbeo_model.classes, {"coeff_mean": [0.0] * 3,
+                                                                         "coeff_std": [1.0] * 3})
+    with pytest.raises(ValueError, match="settings: coeff_mean has 3 values for a network with"):
+        m.save(tmp_path / "m.hbeo")
+    assert not (tmp_path / "m.hbeo").exists()
+
+
+# ------------------------------------------------------------------ damaged old files (convert-model)
+
+def _legacy_blob(model: HBEO) -> dict:
+    buf = io.BytesIO()
+    model.subspace.save(buf)
+    return {"format_version": 1, "hbeo_version": "0.1.0", "net_cfg": model.net.cfg.to_dict(),
+            "state_dict": model.net.state_dict(), "subspace": buf.getvalue(),
+            "intrinsics": model.intrinsics.as_tuple(), "classes": list(model.classes),
+            "settings": model.settings.to_dict()}
+
+
+def _shape(blob):
+    name = next(k for k, v in blob["state_dict"].items() if v.ndim == 2)
+    blob["state_dict"][name] = torch.zeros(3, 3)
+
+
+DAMAGED_LEGACY = {
+    # name: (damage(blob), what the one line must say after the old file's name)
+    "a tensor of another shape": (_shape, "cannot be converted: weights.safetensors does not match net_cfg"),
+    "subspace a str": (lambda b: b.update(subspace="junk"), "subspace must be bytes (a subspace .npz), got str"),
+    "subspace a number": (lambda b: b.update(subspace=5), "subspace must be bytes (a subspace .npz), got int"),
+    "subspace garbage bytes": (lambda b: b.update(subspace=b"\0junk" * 20), "subspace is not a readable subspace"),
+    "four intrinsics": (lambda b: b.update(intrinsics=b["intrinsics"][:4]), "intrinsics must hold 6 numbers"),
+    "seven intrinsics": (lambda b: b.update(intrinsics=(*b["intrinsics"], 1.0)), "intrinsics must hold 6 numbers"),
+    "an unknown setting": (lambda b: b["settings"].update(fizz=1), "cannot be converted (ValueError: settings: unknown keys fizz"),
+    "classes a string": (lambda b: b.update(classes="ab"), "classes must be a list of class names, got str"),
+    "a width of a float": (lambda b: b.update(intrinsics=(*b["intrinsics"][:4], 32.0, 24)),
+                           "intrinsics.width must be a whole positive number"),
+}
+
+
+@pytest.mark.parametrize("case", list(DAMAGED_LEGACY))
+def test_converting_a_damaged_old_file_is_one_line_naming_it(hbeo_model, tmp_path, capsys, case):
+    from hbeo.cli import main
+    damage, problem = DAMAGED_LEGACY[case]
+    blob = _legacy_blob(hbeo_model)
+    damage(blob)
+    old, new = tmp_path / "old.hbeo", tmp_path / "new.hbeo"
+    torch.save(blob, old)
+    code = main(["convert-model", str(old), str(new)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"error: {old}: ") and problem in err and err.count("\n") == 1, err
+    assert "Traceback" not in err and sorted(p.name for p in tmp_path.iterdir()) == ["old.hbeo"]

@@ -26,6 +26,9 @@ def same_predictions(legacy, converted) -> None:
     """DataError unless the converted file predicts bit-identically to the old file's content put
     together the way the old loader did (4 synthetic depth images / partial grids, fixed seed)."""
     b, rng = legacy.blob, np.random.default_rng(0)
+    # the converted file first: its reader checks everything (weights against net_cfg, settings) and says
+    # what is wrong, where the old loader's way would fail inside torch or numpy
+    new = (HBEO if legacy.kind == "hbeo" else VoxCNNBaseline).load(converted)
     if legacy.kind == "hbeo":
         net = HBEONet(NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in b["net_cfg"].items()}))
         net.load_state_dict(b["state_dict"])
@@ -38,7 +41,7 @@ def same_predictions(legacy, converted) -> None:
                                 rng.uniform(0.35, 0.65, 4) * K.height, rng.uniform(0.12, 0.3, 4) * K.width):
             q = 1 - ((u - cu) ** 2 + (v - cv) ** 2) / r ** 2           # an ellipsoid's near side
             depth.append(np.where(q > 0, z - 0.3 * np.sqrt(np.clip(q, 0, None)), 0.0))
-        a, c = old.predict(np.stack(depth), K), HBEO.load(converted).predict(np.stack(depth), K)
+        a, c = old.predict(np.stack(depth), K), new.predict(np.stack(depth), K)
         pairs = [(getattr(a, f), getattr(c, f)) for f in ("probabilities", "rotation", "translation", "coeffs",
                                                          "grids")]
     else:
@@ -47,6 +50,6 @@ def same_predictions(legacy, converted) -> None:
         filled = rng.random((4, 30, 30, 30)) < 0.1
         known = filled | (rng.random((4, 30, 30, 30)) < 0.4)
         pairs = zip(VoxCNNBaseline(net, b["classes"], b["settings"]).predict_partial(filled, known),
-                    VoxCNNBaseline.load(converted).predict_partial(filled, known))
+                    new.predict_partial(filled, known))
     if not all(np.array_equal(x, y) for x, y in pairs):
         raise DataError(converted, "the converted model predicts differently from the old file; not written")

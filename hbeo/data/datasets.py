@@ -441,7 +441,7 @@ def _held_out(dataset: "Dataset", profile=None, gridset=None) -> tuple[list[Obje
 def training_class_counts(dataset: "Dataset", profile=None, gridset=None) -> np.ndarray:
     """(C,) int: the objects of each of ``dataset.classes`` that a run with ``profile`` trains on (its
     training records less :func:`validation_records`' objects): the training class prior of a model
-    file that does not record its own (:attr:`hbeo.model.modelfile.ModelSettings.class_counts`, images
+    file that does not record its own (:attr:`hbeo.model.modelmeta.ModelSettings.class_counts`, images
     per class: proportional to these, every object rendered alike, up to objects that failed)."""
     train, held = _held_out(dataset, profile, gridset)
     counts = np.zeros(len(dataset.classes), np.int64)

@@ -24,6 +24,7 @@ from hbeo.model.inference import HBEO
 from hbeo.model.network import HBEONet, LossWeights, NetConfig, check_network, hbeo_loss
 from hbeo.model import distributed
 from hbeo.model.loop import TrainConfig, ValidationMeans, train
+from hbeo.model.modelmeta import SHAPE_LOSSES
 from hbeo.render.renderset import Manifest, subspace_info
 from hbeo.render.views import RenderSettings
 from hbeo.rotations import geodesic_deg
@@ -33,14 +34,6 @@ from hbeo.model.trainingdata import (CLASS_BALANCE, DATA_SOURCES, ClassBalanced,
                                     training_data)
 
 
-#: What the shape term of the loss measures (``python -m hbeo train --shape-loss``): ``coeffs`` (the paper's
-#: L2 norm of the coefficient error, here on standardized coefficients, this project's choice: every
-#: coefficient weighted alike) or
-#: ``voxels`` (the L2 norm of the completed grid's occupancy error: the basis is orthonormal, so
-#: ``||W c_hat - W c|| = ||c_hat - c||`` on raw coefficients; the leading components, which carry most
-#: voxels, weigh most), divided by the root-mean-square coefficient standard deviation so that both
-#: terms have the same size, sqrt(k), for a network that answers the mean coefficients.
-SHAPE_LOSSES = ("coeffs", "voxels")
 
 
 # --------------------------------------------------------------------------- HBEONet for the loop
@@ -53,7 +46,7 @@ class HBEONetTask:
     ``label`` (B,), ``rotation`` (B, 3, 3), ``axis_angle`` (B, 3), ``coeffs`` (B, k) standardized).
     Validation: mean loss parts, accuracy and median geodesic pose error (degrees).
     ``coeff_std`` (k,): the targets' standard deviations, given for the ``voxels`` shape loss
-    (:data:`SHAPE_LOSSES`): the coefficient error is then measured on raw coefficients.
+    (:data:`~hbeo.model.modelmeta.SHAPE_LOSSES`): the coefficient error is then measured on raw coefficients.
     ``class_weights`` (C,): the cross-entropy's class weights (the ``loss`` class balance,
     :func:`class_weights`); None: unweighted, the paper's."""
 
@@ -91,7 +84,7 @@ class HBEONetTask:
 
     def _scale(self, like: torch.Tensor):
         """Divisor of the standardized coefficient error: 1 (paper) or rms(std) / std (raw coefficients,
-        rescaled: :data:`SHAPE_LOSSES`), on ``like``'s device in its dtype."""
+        rescaled: :data:`~hbeo.model.modelmeta.SHAPE_LOSSES`), on ``like``'s device in its dtype."""
         if self.coeff_std is None:
             return 1.0
 

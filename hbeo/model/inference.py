@@ -95,7 +95,7 @@ class Prediction:
 class HBEO:
     """A trained model: network + subspace + camera + classes + preprocessing settings.
 
-    settings: a :class:`~hbeo.model.modelfile.ModelSettings` (or a dict of its fields, the rest
+    settings: a :class:`~hbeo.model.modelmeta.ModelSettings` (or a dict of its fields, the rest
     default): ``object_size`` (m, training objects' longest side), ``recenter`` (turn the view
     to the object), ``ref_distance`` (m or None: distance normalization), ``coeff_mean`` /
     ``coeff_std`` (k,) with which the network's coefficient output is de-standardized, and

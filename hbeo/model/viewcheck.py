@@ -41,7 +41,7 @@ def min_input_pixels(K: Intrinsics) -> int:
 
 def check_view(v, K: Intrinsics, settings, recenter: bool, index: int | None = None) -> list[str]:
     """Warnings (list of str) for one image's model view ``v`` (model camera ``K``, the model's
-    :class:`~hbeo.model.modelfile.ModelSettings`; ``recenter``: whether the view was turned to the object);
+    :class:`~hbeo.model.modelmeta.ModelSettings`; ``recenter``: whether the view was turned to the object);
     DataError when the network's input would be empty or the object's distance is implausible. ``index``: the
     image's place in a batch, named in the messages."""
     who = "" if index is None else f"image {index}: "

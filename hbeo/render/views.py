@@ -82,6 +82,8 @@ class RenderSettings:
     def __post_init__(self):
         def pair(name, conv):
             v = getattr(self, name)
+            if not isinstance(v, (list, tuple, np.ndarray)):
+                raise ValueError(f"RenderSettings.{name} must be a pair of numbers, got {v!r}")
             try:
                 v = tuple(conv(x) for x in v)
             except (TypeError, ValueError):
@@ -100,14 +102,16 @@ class RenderSettings:
         check_sampler(self.sampler)
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown render backend {self.backend!r}; expected one of {', '.join(BACKENDS)}")
-        object.__setattr__(self, "object_size", float(self.object_size))
-        object.__setattr__(self, "shift", float(self.shift))
+        object.__setattr__(self, "object_size", _as_float(self.object_size, "RenderSettings.object_size"))
+        object.__setattr__(self, "shift", _as_float(self.shift, "RenderSettings.shift"))
         if not (math.isfinite(self.object_size) and self.object_size > 0):
             raise ValueError(f"RenderSettings.object_size must be > 0 metres, got {self.object_size}")
         if not (math.isfinite(self.shift) and self.shift >= 0):
             raise ValueError(f"RenderSettings.shift must be >= 0, got {self.shift}")
-        pair("distance", float)
-        lo, hi = pair("elevation_deg", float)
+        lo, hi = pair("distance", lambda x: _as_float(x, "RenderSettings.distance"))
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+            raise ValueError(f"RenderSettings.distance must be finite metres with 0 < min <= max, got {(lo, hi)}")
+        lo, hi = pair("elevation_deg", lambda x: _as_float(x, "RenderSettings.elevation_deg"))
         if not (-90 <= lo <= hi <= 90):
             raise ValueError(f"RenderSettings.elevation_deg must satisfy -90 <= min <= max <= 90, got {(lo, hi)}")
         if not isinstance(self.noise, (bool, np.bool_)):
@@ -144,14 +148,25 @@ class RenderSettings:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RenderSettings":
+    def from_dict(cls, d: dict, strict: bool = False) -> "RenderSettings":
+        """From :meth:`to_dict`'s dict, the keys left out taking their defaults. A key that is no field is
+        ignored (settings recorded by another version), or with ``strict`` refused (ValueError naming it)."""
         names = {f.name for f in fields(cls)}
+        if strict and (unknown := sorted(set(d) - names, key=str)):
+            raise ValueError(f"unknown keys {', '.join(map(str, unknown))} (known: {', '.join(f.name for f in fields(cls))})")
         return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def _as_float(v, name="value") -> float:
+    """A number (not a string, a bool or None) as a float; ValueError naming ``name`` otherwise."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float, np.floating)):
+        raise ValueError(f"{name} must be a number, got {type(v).__name__} {v!r:.40}")
+    return float(v)
 
 
 def _as_int(v, name="value") -> int:
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float, np.floating)) \
-            or float(v) != int(v):
+            or not math.isfinite(float(v)) or float(v) != int(v):
         raise ValueError(f"{name} must be an integer, got {v!r}")
     return int(v)
 
