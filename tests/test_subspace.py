@@ -230,5 +230,5 @@ def test_a_class_whose_fit_did_not_converge_is_named(some):
     """A per-class VBPCA stopped by its iteration cap warns, naming the class (no filter hides it)."""
     from sklearn.exceptions import ConvergenceWarning
     X, y = some
-    with pytest.warns(ConvergenceWarning, match=r"class 'bed': VBPCA stopped at max_iter=2"):
+    with pytest.warns(ConvergenceWarning, match=r"cap of 2 iterations .* for 3 of 3 classes: bed \(\de-\d\d\), ch"):
         ObjectSubspace(vbpca={"max_iter": 2}).fit(X, y, classes=SOME, progress=False)

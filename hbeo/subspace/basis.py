@@ -28,6 +28,8 @@ import warnings
 import numpy as np
 from scipy import linalg
 from scipy.linalg import blas
+from sklearn.exceptions import ConvergenceWarning
+
 from hbeo.progress import tqdm
 
 from hbeo import conventions as C
@@ -103,7 +105,7 @@ class ObjectSubspace:
             raise ValueError(f"{int(empty.sum())} empty grids among the training data (first at index "
                              f"{int(np.argmax(empty))}); drop them before fitting")
         fixed = self.n_components
-        models, means = {}, []
+        models, means, unconverged = {}, [], []
         for ci, name in enumerate(tqdm(classes, desc="VBPCA per class", disable=not progress)):
             Xc = X[labels == ci]
             if len(Xc) == 0:
@@ -112,12 +114,20 @@ class ObjectSubspace:
             if fixed is not None:
                 cap = fixed[name] if isinstance(fixed, dict) else int(fixed)
             kw = dict(self.vbpca, prune=False) if fixed is not None else self.vbpca
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
+            with warnings.catch_warnings():                 # said once for every class below
+                warnings.simplefilter("ignore", ConvergenceWarning)
                 models[name] = VBPCA(n_components=cap, variance=None, **kw).fit(Xc)
-            for w in caught:                                # a fit that did not converge, say: named by its class
-                warnings.warn(f"class {name!r}: {w.message}", w.category, stacklevel=2)
+            m = models[name]
+            change = abs(m.elbo_[-1] - m.elbo_[-2]) / abs(m.elbo_[-1]) if len(m.elbo_) > 1 else 0.0
+            if m.n_iter_ >= m.max_iter and change > m.tol:
+                unconverged.append(f"{name} ({change:.0e})")
             means.append(models[name].mean_.astype(np.float32))
+        if unconverged:
+            m = next(iter(models.values()))
+            warnings.warn(f"VBPCA stopped at its cap of {m.max_iter} iterations before the lower bound converged "
+                          f"(relative change <= {m.tol:g}) for {len(unconverged)} of {len(classes)} classes: "
+                          f"{', '.join(unconverged)} (the last relative change); their spectra are approximate "
+                          f"(raise the vbpca setting max_iter for exact ones)", ConvergenceWarning, stacklevel=2)
         spectra = {c: m.explained_variance_ratio_ for c, m in models.items()}
         if fixed is not None:
             f = None
