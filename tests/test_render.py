@@ -207,6 +207,22 @@ def test_osmesa_platform_agrees_with_embree():
 
 
 @NEEDS_PYRENDER
+@pytest.mark.slow
+def test_training_after_rendering_with_pyrender_in_one_process():
+    """Mesa's OpenGL and Triton each load an LLVM; Triton's, loaded second (torch's first optimizer imports it),
+    segfaulted. Fresh process: this one may have loaded either already."""
+    code = ("import numpy as np, trimesh, torch\n"
+            "from hbeo.render import renderer as render\nfrom hbeo import conventions as C\n"
+            "d = render.Renderer(C.Intrinsics.kinect(32, 24), 'pyrender').render(\n"
+            "    trimesh.creation.icosphere(2, radius=0.4), np.eye(3), np.array([0, 0, 1.5]))\n"
+            "torch.optim.AdamW([torch.zeros(1, requires_grad=True)])\n"
+            "print(int((d > 0).sum()))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 0, (res.returncode, res.stderr[-2000:])
+    assert int(res.stdout.split()[-1]) > 20
+
+
+@NEEDS_PYRENDER
 def test_egl_probe_says_no_for_a_device_that_is_not_there(monkeypatch):
     """The probe runs pyrender's own EGL set-up in a child process: a missing device is a 'no'
     (and gl_platform then picks OSMesa), not a crash of this process."""

@@ -171,8 +171,23 @@ def pyrender_available() -> bool:
     return res.returncode == 0
 
 
+def _load_triton_first() -> None:
+    """Import Triton, where it is installed, before pyrender loads OpenGL. Mesa's software OpenGL (llvmpipe)
+    and Triton each bring an LLVM; loaded after Mesa's, Triton's segfaults on import, and torch imports it
+    with its first optimizer (``torch._dynamo``): rendering with pyrender, then training in one process,
+    crashed. Loaded first, both work."""
+    if importlib.util.find_spec("triton") is None:
+        return
+    try:
+        import triton  # noqa: F401
+    except Exception:                                   # a Triton that cannot load here: torch will not use it
+        pass
+
+
 def _import_pyrender():
-    """pyrender, or a RuntimeError that says why it cannot be used here."""
+    """pyrender, or a RuntimeError that says why it cannot be used here (Triton loaded first:
+    :func:`_load_triton_first`)."""
+    _load_triton_first()
     try:
         import pyrender
     except (ImportError, AttributeError) as err:     # AttributeError: a numpy name a pyrender release lacks
