@@ -15,7 +15,8 @@ leaves a file that looks complete, and no file is ever unpickled:
   subspace), read back with ``allow_pickle=False`` and a :class:`~hbeo.errors.DataError` naming
   the file;
 - :func:`pack_bits` / :func:`unpack_bits`: boolean arrays (occupancy grids, masks) stored as
-  bit-packed rows, one row of ``ceil(size / 8)`` uint8 per item.
+  bit-packed rows, one row of ``ceil(size / 8)`` uint8 per item;
+- :func:`exclusive_lock`: one process at a time in a folder (a run being reproduced).
 
 Imports nothing from the rest of the package but :mod:`hbeo.errors` and :mod:`hbeo.conventions`
 (the grid shape).
@@ -30,6 +31,7 @@ import math
 import os
 import re
 import tempfile
+import time
 import zipfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -127,6 +129,39 @@ def atomic_files(specs, **kw):
         if isinstance(err, OSError) and current is not None and err.filename in (None, *(t for t, _, _ in made if t)):
             raise OSError(err.errno, err.strerror, str(current)) from err
         raise
+
+
+@contextmanager
+def exclusive_lock(path, what: str):
+    """Hold an exclusive lock on the file ``path`` (created; it records the holder's pid and start) for the
+    ``with`` block, or raise DataError naming ``path``'s folder when another process holds it (``what``: what
+    that process is doing, for the message). The operating system drops the lock when its holder exits,
+    however it exits, so a crashed run leaves no stale lock. Without ``fcntl`` (not POSIX) nothing is locked."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    f = open(path, "a+", encoding="utf-8")
+    try:
+        try:
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as err:
+            if err.errno not in (errno.EACCES, errno.EAGAIN):
+                raise
+            f.seek(0)
+            holder = f.read().strip() or "another process"
+            raise DataError(path.parent, f"{what} is already running here ({holder}); wait for it to finish, "
+                                         "or write elsewhere") from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}")
+        f.flush()
+        yield
+    finally:
+        f.close()                                       # closing the file releases the lock
 
 
 def finite_json(obj):

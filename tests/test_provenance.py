@@ -145,3 +145,27 @@ def test_an_interrupted_notebook_is_set_aside_and_the_way_on_is_printed(tmp_path
     assert not run.manifest.exists() or "04_train" not in json.loads(run.manifest.read_text()).get("notebooks", {})
     err = capsys.readouterr().err
     assert "interrupted in 04_train" in err and f"--out {out}`" in err
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused(tmp_path, monkeypatch, capsys):
+    """Two reproduce runs into one folder (make reproduce in two terminals): the second stops before it touches
+    anything (its --fresh would remove the first one's models under it) and names the first's pid; once the first
+    is done the folder is free again."""
+    import papermill as pm
+    from hbeo import cli
+    from hbeo.errors import DataError
+    from hbeo.storage import exclusive_lock
+    ran = []
+    monkeypatch.setattr(pm, "execute_notebook", lambda nb, target, **kw: ran.append(nb))
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.hbeo").write_text("the first run's model")
+    with exclusive_lock(out / notebooks.LOCK_NAME, "a first run"):
+        with pytest.raises(DataError, match=r"already running here \(pid \d+, since"):
+            notebooks.run_notebooks("ci", "procedural", out, only=["07"], fresh=True)
+        assert cli.main(["reproduce", "--profile", "ci", "--dataset", "procedural", "--out", str(out), "--only",
+                         "07", "--fresh"]) == 2
+        assert "make reproduce) is already running here" in capsys.readouterr().err
+    assert ran == [] and (out / "model.hbeo").exists()
+    notebooks.run_notebooks("ci", "procedural", out, only=["07"], fresh=True)
+    assert len(ran) == 1 and not (out / "model.hbeo").exists()

@@ -21,8 +21,11 @@ from hbeo.errors import HBEOError
 from hbeo.progress import ProgressEcho
 from hbeo.report.provenance import reproduce_command, write_manifest
 from hbeo.rundir import RunDir
+from hbeo.storage import exclusive_lock
 
 NOTEBOOKS = config.REPO_ROOT / "notebooks"
+#: The file in a run folder that ``reproduce`` holds locked while it runs (its pid and start inside).
+LOCK_NAME = ".reproduce.lock"
 
 
 def notebooks(only=None) -> list[Path]:
@@ -74,12 +77,20 @@ def run_notebooks(profile: str = "cpu", dataset: str = "procedural", out_dir=Non
     evaluated there (:func:`clear_products`), so every model is trained inside this run. After the last notebook,
     the run's ``REPRODUCTION.md`` is written (:func:`hbeo.report.reproduction_md.write_reproduction`; for the
     reference run, :data:`~hbeo.report.reproduction_md.REFERENCE_RUN`, also ``paper/REPRODUCTION.md``).
-    Returns the executed copies.
+    Returns the executed copies. One run at a time in a folder: a second one into it is refused while the first
+    runs (:func:`hbeo.storage.exclusive_lock` on ``RUN/.reproduce.lock``), since its ``--fresh`` would remove the
+    first one's products under it.
     """
-    import papermill as pm
-    from hbeo.report.reproduction_md import write_reports
     nbs = notebooks(only)                    # an unknown --only fails before anything is opened
     run = preflight(profile, dataset, out_dir, training_seed).dir
+    with exclusive_lock(run.path / LOCK_NAME, "python -m hbeo reproduce (make reproduce)"):
+        return _run_locked(run, nbs, profile, dataset, fresh, training_seed)
+
+
+def _run_locked(run, nbs, profile, dataset, fresh, training_seed) -> list[Path]:
+    """:func:`run_notebooks` once it holds the run folder's lock."""
+    import papermill as pm
+    from hbeo.report.reproduction_md import write_reports
     if not fresh:
         check_run_folder(run, profile, dataset, training_seed)
     params = {"profile": profile, "dataset": dataset, "out_dir": str(run.path)}
