@@ -387,7 +387,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="average over this many camera rolls (rotation-bins models; N network passes; 1 = off)")
     p.add_argument("--depth", required=True, help="depth image: 16-bit PNG in mm, or float .npy/.tiff in m")
     p.add_argument("--intrinsics", required=True, help="fx,fy,cx,cy in pixels")
-    p.add_argument("--mask", help="object mask image (non-zero = object), same size as the depth")
+    p.add_argument("--mask", help="object mask image (PNG, .npy or .tiff: 0 = background, one non-zero value = "
+                   "object; a blurred mask is refused), same size as the depth")
     p.add_argument("--depth-scale", type=POSITIVE, help="metres per stored unit (default 0.001 for integer images)")
     p.add_argument("--out", required=True, help="result JSON")
     p.add_argument("--mesh", help="also write the completed shape, placed in the camera frame (.ply/.obj/.stl)")
