@@ -137,7 +137,6 @@ def check_run_folder(run, profile: str, dataset: str, training_seed: int) -> Non
     """HBEOError when the manifest of the run folder ``run`` records another profile, dataset or training seed
     than asked: its models, evaluations and tables would mix two runs' (a folder without a manifest takes any;
     one that is not valid JSON or has entries of the wrong type: DataError naming it, :meth:`RunDir.read_manifest`)."""
-    from hbeo.errors import HBEOError
     run = RunDir.of(run)
     if not run.manifest.is_file():
         return

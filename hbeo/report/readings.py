@@ -145,9 +145,10 @@ def claims_table(readings: list[Reading], man: dict, run) -> pd.DataFrame:
     judged = {r.sampler: T.claims(r.evals) for r in shown}
     rows = []
     for p in T.PLAYERS:
+        ran = [r.evals[p] for r in shown if p in r.evals]
+        who = label(ran[0]) if ran else LABELS[p]
         for i, c in enumerate(paired.CLAIMS):
-            ran = [r.evals[p] for r in shown if p in r.evals]
-            row = {"claim (paper)": c.text, "HBEO played by": label(ran[0]) if ran else LABELS[p]}
+            row = {"claim (paper)": c.text, "HBEO played by": who}
             for r in shown:
                 cl = judged[r.sampler]
                 if (p[0], i) in cl.index:
