@@ -218,3 +218,19 @@ def test_edt_nonempty_mean_leaves_out_the_empty_completions():
     del q["empty"]
     old = paired.PairedBootstrap([m], n_boot=50).estimate(key, "edt_nonempty_mean")
     assert old.value == pytest.approx(edt[kept].mean()) and old.n_queries == 90 - len(gone)
+
+
+def test_the_bootstrap_median_is_np_median_of_each_resample():
+    """A resample's median (integer weights: how often each query was drawn) is ``np.median`` of the resample
+    written out, the point value's own rule: for an even count the mean of the two middle values, not the lower
+    one (the interval and its point value had used two rules)."""
+    from hbeo.evaluation.paired import _weighted_median
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 8):
+        v = rng.normal(size=n).round(1)                        # rounding makes ties
+        w = rng.integers(0, 3, size=(40, n)).astype(float)
+        w[w.sum(axis=1) == 0, 0] = 1
+        got = _weighted_median(v, w)
+        want = [np.median(np.repeat(v, row.astype(int))) for row in w]
+        np.testing.assert_allclose(got, want)
+    assert _weighted_median(np.array([1.0, 4.0]), np.ones((1, 2)))[0] == 2.5

@@ -97,12 +97,18 @@ def queries(metrics: dict) -> pd.DataFrame:
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Median of ``values`` (n,) under each row of ``weights`` (b, n): the smallest value whose
-    cumulative weight reaches half the row's total."""
+    """Median of ``values`` (n,) under each row of ``weights`` (b, n), as ``np.median`` takes it at unit
+    weights: the smallest value whose cumulative weight reaches half the row's total, averaged with the next
+    value of positive weight where it reaches exactly half (an even count's two middle values)."""
     order = np.argsort(values, kind="stable")
-    cum = np.cumsum(weights[:, order], axis=1)
-    first = (cum >= cum[:, -1:] / 2).argmax(axis=1)
-    return values[order][first]
+    v, w = values[order], weights[:, order]
+    cum = np.cumsum(w, axis=1)
+    half = cum[:, -1:] / 2
+    first = (cum >= half).argmax(axis=1)
+    rows = np.arange(len(w))
+    after = (cum > cum[rows, first][:, None]).argmax(axis=1)         # the next value with weight
+    exact = np.isclose(cum[rows, first], half[:, 0], rtol=0, atol=1e-9) & (cum[rows, first] < cum[:, -1])
+    return np.where(exact, (v[first] + v[after]) / 2, v[first])
 
 
 @dataclass
