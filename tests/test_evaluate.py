@@ -32,6 +32,8 @@ def test_summary_keys_and_values():
     assert m["pose_error_deg"]["within_30"] == 0.5 and m["pose_error_deg"]["within_30_sym"] == 1.0
     assert m["per_class"]["table"]["pose_within_30"] == 0 and m["per_class"]["chair"]["pose_within_30"] == 1
     assert m["completion"]["iou"] == 1.0 and m["runtime_ms"]["mean_per_query"] == 3.0
+    from hbeo.machine import hardware
+    assert m["hardware"] == hardware() and m["hardware"]["cores"] >= 1       # the machine that timed it
     assert m["per_class"]["table"]["pose_median_deg"] == 180 and m["per_class"]["table"]["pose_median_sym_deg"] == 0
     assert m["confusion"] == [[0, 1], [0, 1]]
 

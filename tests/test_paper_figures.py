@@ -202,6 +202,22 @@ def test_table2_note_records_the_hardware():
     assert "GPU: none" in tables.table2_note({"cpu": "c", "cores": 2, "gpu": None, "torch_threads": 1})
 
 
+def test_table2_note_names_the_machines_that_timed_the_evaluations():
+    """The times come from the evaluation files, each made where it ran: the note names their machines (rows of
+    each when they differ), and says which files did not record one, not the machine the table is made on."""
+    here = {"cpu": "Here CPU", "cores": 2, "gpu": None, "torch_threads": 2}
+    a, b = {**here, "cpu": "EPYC"}, {**here, "cpu": "Xeon", "cores": 4}
+    hbeo = {"method": "hbeo", "pose": "3dof", "hardware": a}
+    beo = {"method": "beo", "pose": "3dof", "hardware": a}
+    note = tables.table2_note(here, [hbeo, beo])
+    assert "Timed on: EPYC, 2 cores" in note and "Here CPU" not in note and "(HBEO" not in note
+    note = tables.table2_note(here, [hbeo, {**beo, "hardware": b}])
+    assert "EPYC, 2 cores, GPU: none, torch threads: 2 (HBEO (3-DOF))" in note and "Xeon, 4 cores" in note
+    old = {k: v for k, v in beo.items() if k != "hardware"}
+    note = tables.table2_note(here, [hbeo, old])
+    assert "(HBEO (3-DOF))" in note and "Not recorded for BEO (3-DOF" in note and "made on Here CPU" in note
+
+
 def test_pose_summary_reports_median_iqr_and_the_paper_mean(evals):
     ps = tables.pose_summary(evals).set_index("method")
     h = ps.loc["HBEO (3-DOF)"]

@@ -50,6 +50,9 @@ or predicted, ``{file, reason, step, object, split}``: left out, the others stil
 ``runtime_ms``
     ``mean_per_query``, ``median_per_query`` (preprocessing + network +
     back-projection, one view per call, after one warm-up call)
+``hardware``
+    the machine the times were measured on (:func:`hbeo.machine.hardware`: cpu, cores, memory, gpu, torch
+    threads, CPU kernels, platform); files written before it was recorded lack it
 ``device``
     the network's device, only when HBEO ran on another than the CPU
     (:meth:`hbeo.model.inference.HBEO.to`; ``runtime_ms`` is then that device's)
@@ -82,6 +85,7 @@ from hbeo.data.gridset import record_grid
 from hbeo.errors import BatchError, DataError
 from hbeo.evaluation.method import HBEOMethod, Method, answer_label
 from hbeo.limits import check_evaluation
+from hbeo.machine import hardware
 from hbeo.render.views import object_key
 from hbeo.rotations import geodesic_deg, symmetric_pose_error_deg
 from hbeo.rundir import failure
@@ -365,7 +369,7 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
             "completion": _means(edt, nai, io, empty),
             "runtime_ms": {"mean_per_query": float(np.mean([r["ms"] for r in rows])),
                            "median_per_query": float(np.median([r["ms"] for r in rows]))},
-            "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
+            "hardware": hardware(), "per_class": per, "classes": list(classes), "confusion": conf.tolist(),
             "per_query": {**({"object": [r["object"] for r in rows], "view": [int(r["view"]) for r in rows]}
                              if all("object" in r for r in rows) else {}),
                           "class": cls.tolist(), "pred": [r["pred"] for r in rows], "pose_deg": raw.round(4).tolist(),

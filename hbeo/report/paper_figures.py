@@ -230,7 +230,7 @@ def runtime_bars(t2: pd.DataFrame, hw: dict):
     """Table II (:func:`hbeo.report.tables.table2`) as bars per method in its colour, seconds
     per query on a log scale: this run's median with interquartile-range error bars (dark) and mean
     (diamond) beside the paper's reported mean (light, hatched). ``hw`` from
-    :func:`hbeo.report.provenance.hardware`."""
+    :func:`hbeo.machine.hardware` (unused: the times' machines are in the note under Table II)."""
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch

@@ -3,18 +3,17 @@
 It records the profile and its settings, the dataset, the git commit and tag, whether the working
 tree had uncommitted changes outside ``results/`` (the run writes there), the code version of the
 evaluations (:func:`hbeo.evaluation.protocol.code_version`), package versions, this machine's
-hardware (:func:`hardware`), the seeds (``seeds.training``: the run's training seed, 0 unless
+hardware (:func:`hbeo.machine.hardware`), the seeds (``seeds.training``: the run's training seed, 0 unless
 ``python -m hbeo reproduce --seed`` asked for another; evaluation and rendering always :data:`SEED`),
 for every notebook its wall time and the commit it ran at, how each model of the run was trained (from
 scratch, or resumed from a checkpoint of an interrupted run: ``train_*/provenance.json``) and the
 command line. Written atomically; each update merges the
 notebooks into those already recorded.
 
-May import: foundation and :mod:`hbeo.evaluation.protocol` (torch only to describe the hardware).
+May import: foundation and :mod:`hbeo.evaluation.protocol`.
 """
 from __future__ import annotations
 
-import os
 import platform
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from pathlib import Path
 from hbeo import __version__
 from hbeo import config
 from hbeo.evaluation.protocol import SEED
+from hbeo.machine import hardware  # noqa: F401 (the manifest's hardware; re-exported for the notebooks)
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text, json_text, read_json
 
@@ -50,39 +50,6 @@ def versions() -> dict:
         except metadata.PackageNotFoundError:
             out[n] = None
     return out
-
-
-def hardware() -> dict:
-    """CPU model, cores, memory (GiB) and GPU of this machine, torch's thread count and the CPU kernels torch
-    dispatches to (``cpu_capability``, e.g. ``AVX2`` or ``AVX512``: two machines that differ there train the same
-    seed to slightly different weights, while inference reproduces; docs/reproduce.md, "Determinism")."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    mem = None
-    try:
-        mem = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30, 1)
-    except (ValueError, OSError, AttributeError):
-        pass
-    gpu = None
-    try:
-        import torch
-        if torch.cuda.is_available():
-            gpu = torch.cuda.get_device_name(0)
-        threads = torch.get_num_threads()
-    except Exception:   # noqa: BLE001 (torch missing or broken: provenance must still be written)
-        threads = None
-    try:
-        capability = torch.backends.cpu.get_cpu_capability()
-    except Exception:   # noqa: BLE001 (an older torch without it, or none)
-        capability = None
-    return {"cpu": cpu, "cores": os.cpu_count(), "memory_gib": mem, "gpu": gpu, "torch_threads": threads,
-            "cpu_capability": capability, "platform": platform.platform()}
 
 
 def git_state(exclude=("results",)) -> dict:

@@ -23,6 +23,7 @@ from hbeo.conventions import CLASSES
 from hbeo.evaluation import paired
 from hbeo.evaluation.method import LABELS, label
 from hbeo.evaluation.protocol import VERIFIED
+from hbeo.machine import describe
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text
 
@@ -272,12 +273,29 @@ def per_class(metrics: dict) -> pd.DataFrame:
     return pd.DataFrame(metrics["per_class"]).T
 
 
-def table2_note(hw: dict) -> str:
-    """The lines under Table II: the statistic, and the hardware of this run (``hw`` from
-    :func:`hbeo.report.provenance.hardware`: cpu, cores, gpu, torch threads) and of the paper."""
-    threads = hw.get("torch_threads")
+def table2_note(hw: dict, evals=()) -> str:
+    """The lines under Table II: the statistic, the machines its times were measured on and the paper's.
+
+    Each evaluation file records the machine that timed it (``hardware``, :func:`hbeo.machine.hardware`); the
+    note names it once when all agree, and the rows of each when they differ (times from two machines do not
+    compare). Files made before evaluations recorded their machine are named as such, with ``hw`` (where this
+    table is made: cpu, cores, gpu, torch threads) beside; without ``evals`` the note names ``hw``."""
+    groups, unknown = {}, []
+    for m in evals:
+        rec = m.get("hardware")
+        if isinstance(rec, dict):
+            groups.setdefault(describe(rec), []).append(label(m))
+        else:
+            unknown.append(label(m))
+    parts = [] if evals else [f"Reproduced on: {describe(hw)}."]
+    if len(groups) == 1 and not unknown:
+        parts.append(f"Timed on: {next(iter(groups))}.")
+    elif groups:
+        parts.append("Timed on: " + "; ".join(f"{d} ({', '.join(rows)})" for d, rows in groups.items()) + ".")
+    if unknown:
+        parts.append(f"Not recorded for {', '.join(unknown)} (evaluation files made before each recorded its "
+                     f"machine; this table was made on {describe(hw)}).")
+    where = " ".join(parts)
     return ("\n\nSeconds per query: median and interquartile range (p25-p75) over each evaluation's queries "
             "(one view per call, after one untimed warm-up call); the mean beside, as the paper reports means.\n"
-            f"Reproduced on: {hw['cpu']}, {hw['cores']} cores, GPU: {hw.get('gpu') or 'none'}, "
-            f"torch threads: {threads if threads is not None else 'unknown'}. "
-            "Paper: 4-core Intel CPU + GTX 1070 (Matlab BEO, TensorFlow HBEONet).\n")
+            f"{where} Paper: 4-core Intel CPU + GTX 1070 (Matlab BEO, TensorFlow HBEONet).\n")
