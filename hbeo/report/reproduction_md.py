@@ -203,8 +203,9 @@ def deviations(man: dict, run=None) -> list[str]:
         "for known pose), as in the paper.",
         "- **Totals.** The paper's HBEO total is the mean of its per-class accuracies; Table I shows that (*class "
         "mean*) and the share over all queries (*total*).",
-        "- **Runtime** is measured on this run's hardware (above), the paper's on a 4-core CPU with a GTX 1070 and "
-        "Matlab baselines; ratios between methods are the comparable figures.",
+        "- **Runtime** is measured where each evaluation ran (its file records the machine; the note under "
+        "Table II names them, and the hardware above is where the models were trained), the paper's on a 4-core "
+        "CPU with a GTX 1070 and Matlab baselines; ratios between methods are the comparable figures.",
     ]
 
 
