@@ -37,7 +37,7 @@ def hardware() -> dict:
         if torch.cuda.is_available():
             gpu = torch.cuda.get_device_name(0)
         threads = torch.get_num_threads()
-    except Exception:   # noqa: BLE001 (torch missing or broken: provenance must still be written)
+    except Exception:   # noqa: BLE001 (torch missing or broken: the rest is still described)
         threads = None
     try:
         capability = torch.backends.cpu.get_cpu_capability()

@@ -23,7 +23,7 @@ from pathlib import Path
 from hbeo import __version__
 from hbeo import config
 from hbeo.evaluation.protocol import SEED
-from hbeo.machine import hardware  # noqa: F401 (the manifest's hardware; re-exported for the notebooks)
+from hbeo.machine import hardware
 from hbeo.rundir import RunDir
 from hbeo.storage import atomic_text, json_text, read_json
 
