@@ -124,22 +124,6 @@ def test_tables_written_into_the_run_feed_the_report(evals, tmp_path):
     assert "## Deviations from the paper" in text
 
 
-def test_claims_of_the_committed_run_are_the_notebook_s_table():
-    """tables.claims (the notebook's claims, refactored to take one reading's evaluations) gives the committed
-    06_claims.md exactly from the committed metrics files; a claim whose settings are missing is left out."""
-    import json
-    from pathlib import Path
-    from hbeo.evaluation.paired import CLAIMS
-    from hbeo.rundir import RunDir
-    ref = RunDir(Path(__file__).resolve().parents[1] / "results" / "cpu-modelnet10-vox30")
-    evals = {k: json.loads(ref.evaluation(*k).read_text()) for k in protocol.EVALUATIONS}
-    cl = tables.claims(evals)
-    assert tables.to_markdown(cl) == ref.table(tables.CLAIMS, "md").read_text()
-    assert list(cl.index[:2]) == [("hbeo", 0), ("hbeo", 1)] and cl.index[-1] == ("hbeo-verify", len(CLAIMS) - 1)
-    some = tables.claims({k: evals[k] for k in (("hbeo", "3dof"), ("icp", "3dof"))})
-    assert list(some.index) == [("hbeo", 4)] and some.iloc[0]["verdict"] == cl.loc[("hbeo", 4), "verdict"]
-
-
 def test_the_resolution_line_comes_from_the_studys_files_or_is_absent(tmp_path):
     import json as _json
     from hbeo.report import reproduction_md as md

@@ -1,0 +1,73 @@
+"""The committed runs' tables are what their committed evaluation files give today: notebooks 05-07's tables of
+intervals, claims and runtimes, made again from each run's ``eval_<method>_<pose>.json`` with the notebooks'
+own calls. A run whose evaluation files were made again without its notebooks, or a change to the statistics
+that the committed tables do not show yet, fails here, naming the run and the table."""
+import json
+from pathlib import Path
+
+import pytest
+
+from hbeo.evaluation import paired, protocol
+from hbeo.report import tables
+from hbeo.rundir import RunDir
+
+RESULTS = Path(__file__).resolve().parents[1] / "results"
+#: every committed run folder whose notebooks 05-07 ran (the ``ci`` run keeps no executed notebooks)
+RUNS = ["cpu-modelnet10-vox30", "cpu-modelnet10-vox30-seed1", "cpu-modelnet10-vox30-seed2", "quick-procedural"]
+#: runs known to differ, and why: strict, so the mark must go once the run is made again
+BEHIND = {"quick-procedural": "its notebooks 05-07 ran before a resample's median became np.median's (the mean "
+                              "of an even count's two middle values): median bounds in 06_pose_ci, 06_completion_ci "
+                              "and 06_claims move (most: BEO 3-DOF's median pose error, n = 50, upper bound 125.7 "
+                              "-> 146.5); `make reproduce` from a clean clone makes them again",
+          "cpu-modelnet10-vox30-seed2": "its HBEO evaluation files were made again under the never-empty completion "
+                                        "rule, its notebooks 05-07 not: 06_completion_ci and 06_claims show the "
+                                        "paper's rule (HBEO mean e' 678 against its file's 271), 07_table2 older "
+                                        "times; `python -m hbeo reproduce --profile cpu --dataset modelnet10-vox30 "
+                                        "--seed 2 --only 05 06 07` from a clean clone makes them again"}
+
+
+def _evals(run: RunDir) -> dict:
+    return {k: json.loads(run.evaluation(*k).read_text()) for k in protocol.EVALUATIONS}
+
+
+def _table_part(text: str) -> str:
+    """A table's Markdown without the note under it (Table II's names where its times were measured)."""
+    return text.split("\n\n", 1)[0].strip()
+
+
+def test_every_committed_run_with_notebooks_is_checked():
+    ran = sorted(p.parent.name for p in RESULTS.glob("*/manifest.json")
+                 if "07_runtime" in json.loads(p.read_text()).get("notebooks", {}))
+    assert ran == sorted(RUNS)
+
+
+@pytest.mark.parametrize("name", [pytest.param(r, marks=pytest.mark.xfail(strict=True, reason=BEHIND[r]))
+                                  if r in BEHIND else r for r in RUNS])
+def test_a_committed_runs_tables_are_its_evaluation_files(name):
+    run = RunDir(RESULTS / name)
+    evals = _evals(run)
+    boot = paired.PairedBootstrap(list(evals.values()))
+    made = {
+        tables.ACCURACY_CI: paired.wide(paired.estimates(paired.PairedBootstrap([evals[k] for k in protocol.TABLE1]),
+                                                         ["accuracy", "class_accuracy"])),
+        tables.POSE_CI: paired.wide(paired.estimates(boot, ["pose_mean", "pose_median", "within_30"],
+                                                     keys=protocol.POSE)),
+        tables.COMPLETION_CI: paired.wide(paired.estimates(
+            boot, ["edt_mean", "edt_median", "edt_nonempty_mean", "iou_mean"], keys=protocol.COMPLETION)),
+        tables.CLAIMS: tables.claims(evals),
+        tables.TABLE2: tables.table2(list(evals.values()), tables.paper_table("table2_runtime")),
+    }
+    for name_, df in made.items():
+        fmt = "{:.4g}" if name_ == tables.TABLE2 else "{:.1f}"
+        want = _table_part(tables.to_markdown(df, floatfmt=fmt))
+        got = _table_part(run.table(name_, "md").read_text())
+        assert got == want, f"{name}/{name_}.md is not what its evaluation files give"
+
+
+def test_claims_leave_out_a_claim_whose_settings_are_missing():
+    from hbeo.evaluation.paired import CLAIMS
+    evals = _evals(RunDir(RESULTS / RUNS[0]))
+    cl = tables.claims(evals)
+    assert list(cl.index[:2]) == [("hbeo", 0), ("hbeo", 1)] and cl.index[-1] == ("hbeo-verify", len(CLAIMS) - 1)
+    some = tables.claims({k: evals[k] for k in (("hbeo", "3dof"), ("icp", "3dof"))})
+    assert list(some.index) == [("hbeo", 4)] and some.iloc[0]["verdict"] == cl.loc[("hbeo", 4), "verdict"]
