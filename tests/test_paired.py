@@ -99,6 +99,25 @@ def test_claims_judged_on_paired_statistics():
     assert v.loc["HBEO's mean 3-DOF pose error is less than half of BEO's (BEO given the class)", "pairs"] == 30
 
 
+
+def test_a_claim_about_time_from_two_machines_is_not_comparable():
+    xeon = {"cpu": "Intel Xeon", "cores": 2, "gpu": None, "torch_threads": 2}
+    epyc = dict(xeon, cpu="AMD EPYC")
+
+    def speed(h_hbeo, h_beo):
+        hbeo = fake("hbeo", "3dof", True, 10.0, 100.0, ms=4.0)
+        beo = fake("beo", "3dof", True, 50.0, 200.0, ms=10_000.0, views=1, given=True)
+        for m, hw in ((hbeo, h_hbeo), (beo, h_beo)):
+            if hw is not None:
+                m["hardware"] = hw
+        v = paired.judge(paired.PairedBootstrap([hbeo, beo], n_boot=100)).set_index("claim (paper)")["verdict"]
+        return v[[c for c in v.index if "faster" in c][0]], v[[c for c in v.index if "pose error" in c][0]]
+
+    assert speed(xeon, epyc) == (paired.NOT_COMPARABLE, "holds")      # only the claim about time is withheld
+    assert speed(xeon, dict(xeon)) == ("holds", "holds")                # one machine: judged
+    assert speed(xeon, None) == ("holds", "holds")                      # an older file: judged as before
+    assert speed(xeon, dict(xeon, torch_threads=1)) == (paired.NOT_COMPARABLE, "holds")
+
 def test_old_files_without_object_ids_are_refused():
     m = fake("hbeo", "3dof", True, 0.0, 0.0)
     del m["per_query"]["object"]

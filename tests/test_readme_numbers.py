@@ -118,6 +118,25 @@ def test_the_verdict_sets_the_paper_beside_the_run():
     assert "tag" not in text                                       # commits, not tags
 
 
+
+def test_the_verdict_counts_a_claim_about_time_from_two_machines_apart(tmp_path):
+    """A run whose speed claim was timed on two machines (``paired.NOT_COMPARABLE``) says so in the counts."""
+    import pandas as pd
+    from hbeo.evaluation.paired import NOT_COMPARABLE
+    from hbeo.report import tables as T
+    ref = tmp_path / RUN.path.name
+    ref.mkdir()
+    for f in RUN.path.iterdir():
+        (ref / f.name).symlink_to(f)
+    claims = RUN.table(T.CLAIMS)
+    (ref / claims.name).unlink()
+    t = pd.read_csv(claims)
+    t.loc[t["claim (paper)"].str.contains("faster"), "verdict"] = NOT_COMPARABLE
+    t.to_csv(ref / claims.name, index=False)
+    text = readme.summary(ref)
+    assert "- HBEO (3-DOF): 1 of 9 hold, 7 fail, 0 inconclusive, 1 not comparable (timed on different machines)." \
+        in text
+
 def test_a_run_at_the_paper_s_scale_joins_the_verdict_under_the_reference_run_s_hbeo_rows(tmp_path):
     """Until a lease's run lands beside the reference run the verdict says the paper's scale has not run; once
     ``results/full-modelnet10-vox30/`` holds ``lease.json`` and HBEO's evaluation, each HBEO row gets its row."""

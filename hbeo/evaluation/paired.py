@@ -25,7 +25,9 @@ compared on the queries every file answered, with an interval over seeds (Welch'
 A claim (:data:`CLAIMS`) is an inequality between two methods' statistics, written as a contrast that
 the claim says is below zero (e.g. HBEO's mean pose error minus half of BEO's). Its verdict
 (:func:`verdict`): ``holds`` when the whole interval of the contrast is below zero, ``fails`` when the
-whole interval is at or above zero, ``inconclusive`` otherwise.
+whole interval is at or above zero, ``inconclusive`` otherwise. A claim about time (:data:`TIMED`) whose two
+files were timed on different machines (their ``hardware``, :func:`hbeo.machine.describe`) is ``not comparable``
+(:data:`NOT_COMPARABLE`) whatever its interval: a ratio of times from two machines measures the machines too.
 
 May import: foundation and the other reproduction modules.
 """
@@ -40,6 +42,7 @@ import numpy as np
 import pandas as pd
 
 from hbeo.evaluation.method import label
+from hbeo.machine import describe
 
 LEVEL = 0.95
 N_BOOT = 2000
@@ -321,9 +324,24 @@ CLAIMS = (
 )
 
 
+#: Statistics measured in time: a claim on one compares the machines that timed its two files as well.
+TIMED = frozenset({"ms_median"})
+#: The verdict of a claim about time whose two files name different machines.
+NOT_COMPARABLE = "not comparable (timed on different machines)"
+
+
+def timed_apart(a: dict, b: dict) -> bool:
+    """True when metrics dicts ``a`` and ``b`` both record the machine that timed them and the two differ
+    (:func:`hbeo.machine.describe`). Files older than that record are taken as they are (False): Table II's
+    note says their machine is not recorded."""
+    ha, hb = a.get("hardware"), b.get("hardware")
+    return isinstance(ha, dict) and isinstance(hb, dict) and describe(ha) != describe(hb)
+
+
 def judge(boot: PairedBootstrap, claims=CLAIMS, hbeo=HBEO) -> pd.DataFrame:
     """Each claim whose two methods are in ``boot``: both statistics on their shared pairs (with
-    intervals), the contrast's interval, the pairs and objects it rests on, and the verdict.
+    intervals), the contrast's interval, the pairs and objects it rests on, and the verdict
+    (:func:`verdict`; :data:`NOT_COMPARABLE` for a claim about time whose files were timed on two machines).
     ``hbeo``: the key that plays HBEO (e.g. HBEO + verify, to judge the extension the same way)."""
     rows = []
     for c in claims:
@@ -333,11 +351,12 @@ def judge(boot: PairedBootstrap, claims=CLAIMS, hbeo=HBEO) -> pd.DataFrame:
         ea, eb = boot.estimate(a, c.what, on=[b]), boot.estimate(b, c.what, on=[a])
         d = boot.contrast(a, b, c.what, c.factor)
         who = {a: label(boot.metrics[a]), b: label(boot.metrics[b])}
+        apart = c.what in TIMED and timed_apart(boot.metrics[a], boot.metrics[b])
         rows.append({"claim (paper)": c.text, "HBEO played by": who[hbeo],
                      "ours (95 % CI)": f"{who[a]}: {ea.text(c.fmt, c.scale)}{c.unit}; "
                                        f"{who[b]}: {eb.text(c.fmt, c.scale)}{c.unit}",
                      "contrast (claim: < 0)": d.text(c.fmt, c.scale),
-                     "pairs": d.n_queries, "objects": d.n_objects, "verdict": verdict(d)})
+                     "pairs": d.n_queries, "objects": d.n_objects, "verdict": NOT_COMPARABLE if apart else verdict(d)})
     return pd.DataFrame(rows)
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from hbeo import config
 from hbeo.errors import DataError
+from hbeo.evaluation.paired import NOT_COMPARABLE
 from hbeo.report import seeds, tables as T
 from hbeo.report.provenance import commit_line
 from hbeo.rundir import RunDir
@@ -152,8 +153,10 @@ def summary(run) -> str:
         lines += ["", "The paper's claims, each judged by a paired 95 % interval (`06_claims.md`):", ""]
         for who, g in cl.groupby("HBEO played by", sort=False):
             counts = g["verdict"].value_counts()
+            apart = counts.get(NOT_COMPARABLE, 0)
             lines.append(f"- {who}: {counts.get('holds', 0)} of {len(g)} hold, {counts.get('fails', 0)} fail, "
-                         f"{counts.get('inconclusive', 0)} inconclusive.")
+                         f"{counts.get('inconclusive', 0)} inconclusive"
+                         + (f", {apart} not comparable (timed on different machines)." if apart else "."))
     lines += _spread_line(run, man)
     lines += _completion_line(run)
     return "\n".join(lines) + "\n"

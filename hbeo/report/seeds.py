@@ -34,7 +34,7 @@ from hbeo import config
 from hbeo.errors import DataError, HBEOError
 from hbeo.evaluation.intervals import intervals
 from hbeo.evaluation.method import label
-from hbeo.evaluation.paired import LEVEL, N_BOOT
+from hbeo.evaluation.paired import LEVEL, N_BOOT, NOT_COMPARABLE
 from hbeo.evaluation.protocol import COMPLETION, EVALUATIONS, POSE, TABLE1
 from hbeo.report import tables
 from hbeo.rundir import RunDir
@@ -188,8 +188,8 @@ def _table(found: list[SeedRun], loaded: dict, n_boot: int, level: float) -> pd.
     return pd.DataFrame(rows)
 
 
-#: The verdicts of :func:`hbeo.evaluation.paired.verdict`, in the order :func:`seed_claims` counts them.
-VERDICTS = ("holds", "inconclusive", "fails")
+#: The verdicts of :func:`hbeo.evaluation.paired.judge`, in the order :func:`seed_claims` counts them.
+VERDICTS = ("holds", "inconclusive", "fails", NOT_COMPARABLE)
 
 
 def seed_claims(runs) -> pd.DataFrame:
