@@ -107,6 +107,23 @@ def _figures(evals):
             "runtime": pf.runtime_bars(t2, hw), "per_class": pf.per_class_bars(t1)}
 
 
+
+def test_the_runtime_legend_names_the_machine_the_evaluations_record(evals):
+    """The legend names the machine the files were timed on, not the one making the figure (``hw``)."""
+    t2 = tables.table2(evals, tables.paper_table("table2_runtime"))
+    here = {"cpu": "Here CPU", "cores": 16, "gpu": "Some GPU", "torch_threads": 16}
+    there = {"cpu": "There CPU", "cores": 2, "gpu": None, "torch_threads": 2}
+
+    def legend(files):
+        fig = pf.runtime_bars(t2, here, files)
+        return " ".join(t.get_text() for leg in fig.legends for t in leg.get_texts())
+
+    assert "2-core CPU, no GPU, torch threads 2" in legend([dict(m, hardware=there) for m in evals])
+    mixed = [dict(m, hardware=there if i else dict(there, cpu="Other CPU")) for i, m in enumerate(evals)]
+    assert "several machines" in legend(mixed) and "16-core" not in legend(mixed)
+    assert "several machines" in legend(evals)                       # files that do not record one
+    assert "16-core CPU, Some GPU, torch threads 16" in legend(())
+
 def test_figures_label_every_panel_and_keep_the_legend_off_the_data(evals):
     for name, fig in _figures(evals).items():
         fig.canvas.draw()

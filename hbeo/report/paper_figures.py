@@ -20,6 +20,7 @@ import pandas as pd
 from hbeo.conventions import CLASSES
 from hbeo.report import figures
 from hbeo.evaluation.method import LABELS, label
+from hbeo.machine import describe
 
 LOWER, HIGHER = "↓ lower is better", "↑ higher is better"
 #: Which direction is better for each per-query column: errors and times lower; the naive score
@@ -226,11 +227,13 @@ def completion_gallery(samples: list[dict]):
     return fig
 
 
-def runtime_bars(t2: pd.DataFrame, hw: dict):
+def runtime_bars(t2: pd.DataFrame, hw: dict, evals=()):
     """Table II (:func:`hbeo.report.tables.table2`) as bars per method in its colour, seconds
     per query on a log scale: this run's median with interquartile-range error bars (dark) and mean
-    (diamond) beside the paper's reported mean (light, hatched). ``hw`` from
-    :func:`hbeo.machine.hardware` (unused: the times' machines are in the note under Table II)."""
+    (diamond) beside the paper's reported mean (light, hatched). The legend names the machine that timed
+    ``evals`` (the metrics dicts behind ``t2``; each records its ``hardware``) when they all record one, else
+    points to the note under Table II (:func:`hbeo.report.tables.table2_note`); without ``evals``, ``hw``
+    (:func:`hbeo.machine.hardware`)."""
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -260,14 +263,23 @@ def runtime_bars(t2: pd.DataFrame, hw: dict):
     ax.set_ylabel("method")
     ax.grid(axis="x", alpha=0.3)
     ax.set_title("Table II: inference time per query, this run beside the paper", fontsize=10)
-    gpu = hw.get("gpu") or "no GPU"
-    handles = [Patch(facecolor="0.35", label=f"this run: median, error bar: p25-p75\n({hw['cores']}-core CPU, "
-                                             f"{gpu}, torch threads {hw.get('torch_threads')})"),
+    handles = [Patch(facecolor="0.35", label=f"this run: median, error bar: p25-p75\n({_timed_on(hw, evals)})"),
                Line2D([], [], ls="", marker="D", markersize=5, color="k", label="this run: mean"),
                Patch(facecolor="0.8", hatch="///", edgecolor="0.35",
                      label="paper: mean (reported)\n(4-core CPU + GTX 1070)")]
     _outside_legend(fig, handles)
     return fig
+
+
+def _timed_on(hw: dict, evals) -> str:
+    """The machine for :func:`runtime_bars`' legend: the one every file of ``evals`` records, else where
+    to read them; ``hw`` when no ``evals`` are given."""
+    recs = [m.get("hardware") for m in evals]
+    if recs and all(isinstance(r, dict) for r in recs) and len({describe(r) for r in recs}) == 1:
+        hw = recs[0]
+    elif recs:
+        return "timed on several machines, or not recorded: the note under Table II"
+    return f"{hw.get('cores')}-core CPU, {hw.get('gpu') or 'no GPU'}, torch threads {hw.get('torch_threads')}"
 
 
 def _seconds(s: float) -> str:
