@@ -33,16 +33,16 @@ May import: foundation and the other reproduction modules.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import pandas as pd
 
+from hbeo.errors import DataError
 from hbeo.evaluation.method import label
 from hbeo.machine import describe
+from hbeo.storage import read_json
 
 LEVEL = 0.95
 N_BOOT = 2000
@@ -69,16 +69,16 @@ STATISTICS: dict[str, tuple[Callable[[pd.DataFrame], np.ndarray], str]] = {
 
 
 def read_metrics(paths) -> list[dict]:
-    """The metrics dicts in ``paths`` (JSON files an evaluation wrote), in order. ValueError naming the file
-    when one cannot be read or is not a metrics dict with per-query answers."""
+    """The metrics dicts in ``paths`` (JSON files an evaluation wrote), in order. DataError (a ValueError) naming
+    the file when one cannot be read or is not a metrics dict with per-query answers."""
     out = []
     for f in paths:
         try:
-            m = json.loads(Path(f).read_text())
-        except (OSError, ValueError) as err:
-            raise ValueError(f"{f}: not a readable metrics file ({err})") from None
-        if not isinstance(m, dict) or "per_query" not in m:
-            raise ValueError(f"{f}: not a metrics file (no per_query answers)")
+            m = read_json(f, "metrics", dict)
+        except OSError as err:
+            raise DataError(f, f"not a readable metrics file ({err.strerror or err})") from None
+        if "per_query" not in m:
+            raise DataError(f, "not a metrics file (no per_query answers)")
         out.append(m)
     return out
 
