@@ -15,15 +15,7 @@ RESULTS = Path(__file__).resolve().parents[1] / "results"
 #: every committed run folder whose notebooks 05-07 ran (the ``ci`` run keeps no executed notebooks)
 RUNS = ["cpu-modelnet10-vox30", "cpu-modelnet10-vox30-seed1", "cpu-modelnet10-vox30-seed2", "quick-procedural"]
 #: runs known to differ, and why: strict, so the mark must go once the run is made again
-BEHIND = {"quick-procedural": "its notebooks 05-07 ran before a resample's median became np.median's (the mean "
-                              "of an even count's two middle values): median bounds in 06_pose_ci, 06_completion_ci "
-                              "and 06_claims move (most: BEO 3-DOF's median pose error, n = 50, upper bound 125.7 "
-                              "-> 146.5); `make reproduce` from a clean clone makes them again",
-          "cpu-modelnet10-vox30-seed2": "its HBEO evaluation files were made again under the never-empty completion "
-                                        "rule, its notebooks 05-07 not: 06_completion_ci and 06_claims show the "
-                                        "paper's rule (HBEO mean e' 678 against its file's 271), 07_table2 older "
-                                        "times; `python -m hbeo reproduce --profile cpu --dataset modelnet10-vox30 "
-                                        "--seed 2 --only 05 06 07` from a clean clone makes them again"}
+BEHIND: dict[str, str] = {}
 
 
 def _evals(run: RunDir) -> dict:
