@@ -107,6 +107,16 @@ def test_table_rows_come_from_the_named_files(tmp_path):
     RunDir(tmp_path).model_rows.write_text(json.dumps(rows))
     with pytest.raises(DataError, match="nope.json"):
         model_table(tmp_path)
+    # models.json itself: missing, not JSON, not a list, a row that is not an object: the file is named
+    path = RunDir(tmp_path).model_rows
+    for text, why in (("[{", "not valid JSON"), ('{"label": "a"}', "a JSON object, not a JSON list"),
+                      ('[{"label": "a"}, 3]', "row 1 is a number")):
+        path.write_text(text)
+        with pytest.raises(DataError, match=f"models.json.*{why}"):
+            model_table(tmp_path)
+    path.unlink()
+    with pytest.raises(DataError, match="models.json.*cannot read the model-table rows.*experiment table"):
+        model_table(tmp_path)
     with pytest.raises(ValueError, match="one generated block"):
         replace_block("no block", table)
 

@@ -175,3 +175,72 @@ def test_readings_sh_takes_only_known_settings_and_the_report_s_commands_are_its
     assert not (tmp_path / "new").exists()                                 # refused before anything ran
     for cmd in re.findall(r'METHODS="([^"]*)" bash', _section(run)):
         assert all(tuple(s.split(":")) in EVALUATIONS for s in cmd.split())
+
+
+def _refit_run(tmp_path) -> RunDir:
+    """Every setting under so3 with BEO's baseline b0; BEO known and 1-DOF under floor with another fit, b1."""
+    run = RunDir(tmp_path / "run").create()
+    run.manifest.write_text(json.dumps(MAN))
+    for k in EVALUATIONS:
+        write(run, fake(*k, right=k[0].startswith("hbeo") or k[1] == "3dof",
+                        baseline_sha256="b0" if k[0] == "beo" else None))
+    write(run, fake("hbeo", "3dof", "floor"), "floor")
+    for pose in ("known", "1dof"):
+        write(run, fake("beo", pose, "floor", right=False, baseline_sha256="b1"), "floor")
+    return run
+
+
+def test_a_reading_with_another_fit_of_the_baseline_is_used_marked_and_compared(tmp_path):
+    """BEO files under a reading that all record another baseline file (the same recipe fitted on another CPU) are
+    used and marked; the note compares that fit with the main reading's on the main queries, once the run's
+    refit-<sha>/ folder holds them (scripts/refit.py), query by query."""
+    run = _refit_run(tmp_path)
+    r = {x.sampler: x for x in readings.run_readings(run)}["floor"]
+    assert r.refit == {("beo", "known"): ("b1", "b0"), ("beo", "1dof"): ("b1", "b0")} and not r.stale
+    text = _section(run)
+    floor = next(line for line in text.splitlines() if line.startswith("- `floor` — "))
+    assert "with another fit of the baseline (†, the note under the claims table): BEO (known pose), BEO (1-DOF)" \
+        in floor
+    t = readings.claims_table(readings.run_readings(run), MAN, run)
+    assert t.iloc[0]["`floor`"].startswith("**holds** †: contrast")           # HBEO vs BEO known: another fit
+    assert "†" not in t.iloc[0]["`so3` (main)"]
+    note = next(line for line in text.splitlines() if line.startswith("† Under `floor`, BEO (known pose), BEO (1-DOF)"))
+    assert "(sha256 b1; the main reading's: b0). A fit of the same training grids" in note
+    assert re.search(r"run `\.venv/bin/python scripts/refit\.py ci procedural \S+` on a machine", note)
+    assert "† BEO (known pose), BEO (1-DOF): another fit of the baseline" in text[text.index("**`floor`**"):]
+    # the refit folder: BEO known with the other fit on the main queries, one answer in 24 changed
+    folder = readings.refit_folder(run, "b1")
+    folder.mkdir()
+    known = fake("beo", "known", right=False, baseline_sha256="b1")
+    known["per_query"]["pred"][0] = known["per_query"]["class"][0]
+    known["per_query"]["edt"][:2] = [130.0, 130.0]
+    write(RunDir(folder), known)
+    note = next(line for line in _section(run).splitlines() if line.startswith("† Under `floor`"))
+    assert "On the main reading's queries, that fit against the main reading's (`refit-b1/`" in note
+    assert ("BEO (known pose): the same class on 23 of 24 queries; accuracy 4.2 [" in note
+            and "mean EDT e′ (lower is better) 2 [" in note and "(24 pairs, 12 objects)" in note)
+    assert "mean pose error" not in note.split("BEO (1-DOF)")[0]              # known pose: no pose statistic
+    assert "BEO (1-DOF): not evaluated with that fit" in note
+    write(RunDir(folder), fake("beo", "1dof", baseline_sha256="b1", model_sha256="m9"))
+    note = next(line for line in _section(run).splitlines() if line.startswith("† Under `floor`"))
+    assert "BEO (1-DOF): its file there is not comparable (another model sha256)" in note
+
+
+def test_a_reading_mixing_fits_of_one_baseline_uses_only_the_main_reading_s(tmp_path):
+    run = _refit_run(tmp_path)
+    write(run, fake("beo", "known", "floor", baseline_sha256="b0"), "floor")
+    r = {x.sampler: x for x in readings.run_readings(run)}["floor"]
+    assert ("beo", "known") in r.evals and not r.refit
+    assert r.stale == {("beo", "1dof"): "`eval_beo_1dof_floor.json`: another baseline sha256 (b1; the main "
+                                        "reading's: b0) than this reading's other beo files"}
+    assert "†" not in _section(run)
+
+
+def test_refit_script_refuses_a_run_without_the_main_reading_s_files(tmp_path):
+    """scripts/refit.py compares with the run's main evaluations: without them it stops before fitting anything."""
+    run = RunDir(tmp_path / "run").create()
+    write(run, fake("beo", "known"))
+    out = subprocess.run([sys.executable, str(ROOT / "scripts" / "refit.py"), "ci", "procedural", str(run.path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 2 and f"{run.evaluation('beo', '1dof')}: missing" in out.stderr, out.stderr
+    assert sorted(p.name for p in run.path.iterdir()) == ["eval_beo_known.json"]      # nothing written

@@ -17,8 +17,15 @@ from the notebooks' tables (``06_claims``, ``05_accuracy_ci``), which the main c
 
 A file is used under its reading only if it records that reading (its ``sampler``) and, where the main
 reading's file of the same setting (else the main HBEO file) records its request, the same dataset,
-model file and seed, and for the same setting the same baseline file and objects: a file left from
-another model is listed as stale, not compared.
+model file and seed, and for the same setting the same objects: a file left from another model is listed as
+stale, not compared. Its baseline file (``baseline_sha256``) may be another than the main reading's when every
+file of that baseline under the reading shares it: a fit of the same training grids, recipe and seed made again
+can differ in its last bits (BEO's class densities come from scikit-learn's EM, whose sums need not be
+bit-identical on another CPU or BLAS), and the hash does not say how far. Such a reading is used and marked
+(:attr:`Reading.refit`, † in the claims table), and the note under the table measures how far: that fit against
+the main reading's on the main reading's own queries, from the run's ``refit-<sha>/`` folder
+(:func:`refit_folder`; ``scripts/refit.py`` makes it), query by query: the class answers that differ and paired
+contrasts of the statistics the claims read; or it says the folder is missing, and the command that makes it.
 
 May import: foundation, :mod:`hbeo.evaluation` and the other report modules.
 """
@@ -51,17 +58,25 @@ ARGUMENT = ("The paper estimates a full 3-DOF pose (its 3-element axis-angle out
             "output is a pose it may be asked for. `upright` and `floor` are defensible readings of a robot's setting "
             "and are reported beside it, not instead of it.")
 #: What a reading's file must share with the main reading's: with any main file, with that of its own setting.
-SAME_RUN, SAME_SETTING = ("dataset_fingerprint", "model_sha256", "seed"), ("baseline_sha256", "per_class", "views")
+SAME_RUN, SAME_SETTING = ("dataset_fingerprint", "model_sha256", "seed"), ("per_class", "views")
+#: The request key of a setting's baseline file; a reading may use another fit (see the module docstring).
+BASELINE = "baseline_sha256"
+#: The script that evaluates the main reading's settings with a baseline fitted again on this machine.
+REFIT_SCRIPT = "scripts/refit.py"
+#: The statistics the note compares between two fits (those the claims read), and the mark of a refit cell.
+REFIT_STATS, MARK = ("accuracy", "pose_mean", "edt_mean"), "†"
 
 
 @dataclass
 class Reading:
     """One reading's evaluations in a run folder: ``evals`` {(method, pose): metrics} of the files used,
-    ``stale`` {(method, pose): which file there was not used, and why}."""
+    ``stale`` {(method, pose): which file there was not used, and why}, ``refit`` {(method, pose): (its baseline
+    file's sha256, the main reading's)} of the files used with another fit of their baseline."""
     sampler: str
     main: bool
     evals: dict = field(default_factory=dict)
     stale: dict = field(default_factory=dict)
+    refit: dict = field(default_factory=dict)
 
     @property
     def missing(self) -> list[tuple]:
@@ -117,8 +132,88 @@ def run_readings(run, settings=EVALUATIONS) -> list[Reading]:
                 r.stale[k] = f"`{path.name}`: {why}"
             else:
                 r.evals[k] = m
+        _other_fits(r, plain, run)
         out.append(r)
     return out
+
+
+def _baseline(m: dict | None):
+    return ((m or {}).get("request") or {}).get(BASELINE)
+
+
+def _other_fits(r: Reading, plain: dict, run: RunDir) -> None:
+    """Of ``r``'s files, those whose baseline file is another than the main reading's file of the same setting:
+    into ``r.refit`` when every file of that baseline under the reading shares it, else into ``r.stale``."""
+    other = {k: (a, b) for k, m in r.evals.items()
+             if (a := _baseline(m)) is not None and (b := _baseline(plain.get(k))) is not None and a != b}
+    for k, (a, b) in other.items():
+        if len({_baseline(m) for j, m in r.evals.items() if j[0] == k[0]}) == 1:
+            r.refit[k] = (a, b)
+        else:
+            del r.evals[k]
+            r.stale[k] = (f"`{run.evaluation(*k, r.sampler).name}`: another baseline sha256 ({a}; the main reading's: "
+                          f"{b}) than this reading's other {k[0]} files")
+
+
+def refit_folder(run, sha: str):
+    """The folder of ``run`` that holds the main reading's evaluations made with the baseline file of sha256
+    ``sha`` (another fit; :data:`REFIT_SCRIPT`), under the main files' names."""
+    return RunDir.of(run).path / f"refit-{sha}"
+
+
+def _agreement(k, ref: dict, other: dict | None, sha: str) -> str:
+    """How the main reading's file ``ref`` of setting ``k`` and ``other`` (the same setting with the baseline fit
+    ``sha``, or None) agree, query by query: the class answers that differ and paired contrasts (other minus ref)."""
+    if other is None:
+        return f"{LABELS.get(k, k)}: not evaluated with that fit"
+    why = next((f"another {key.replace('_', ' ')}" for key in SAME_RUN + SAME_SETTING
+                if (other.get("request") or {}).get(key) != (ref.get("request") or {}).get(key)), None)
+    if why or _baseline(other) != sha:
+        return f"{LABELS.get(k, k)}: its file there is not comparable ({why or 'another baseline file'})"
+    pred = dict(zip(zip(ref["per_query"]["object"], ref["per_query"]["view"]), ref["per_query"]["pred"]))
+    q = other["per_query"]
+    shared = [(o, v, p) for o, v, p in zip(q["object"], q["view"], q["pred"]) if (o, v) in pred]
+    same = sum(pred[o, v] == p for o, v, p in shared)
+    stats = [s for s in REFIT_STATS if not (s == "accuracy" and ref.get("given_class"))
+             and not (s == "pose_mean" and k[1] == "known")]
+    est = paired.contrast_pair(other, ref, stats)
+    parts = []
+    for s, e in est.items():
+        fmt, scale, unit = paired.SHOW[s]
+        parts.append(f"{paired.NAMES[s]} {e.text(fmt, scale)}{' points' if unit == ' %' else unit}")
+    return (f"{LABELS.get(k, k)}: the same class on {same:,} of {len(shared):,} queries; "
+            + ", ".join(parts) + f" ({len(shared):,} pairs, {est[stats[0]].n_objects} objects)")
+
+
+def refit_note(readings: list[Reading], man: dict, run) -> list[str]:
+    """The note under the claims table on the readings that use another fit of a baseline (:attr:`Reading.refit`):
+    which fit, why it differs, and how it agrees with the main reading's on the main reading's queries."""
+    fits: dict = {}
+    for r in readings:
+        for k, pair in r.refit.items():
+            fits.setdefault(pair, {}).setdefault(k, []).append(r.sampler)
+    lines = []
+    for (sha, main_sha), keys in fits.items():
+        where = sorted({s for v in keys.values() for s in v}, key=SAMPLERS.index)
+        folder = refit_folder(run, sha)
+        rd = RunDir(folder)
+        text = (f"{MARK} Under {', '.join(f'`{s}`' for s in where)}, {_labels(keys)} use another fit of "
+                f"{', '.join(sorted({k[0].upper() for k in keys}))}'s baseline file (sha256 {sha}; the main reading's: "
+                f"{main_sha}). A fit of the same training grids, recipe and seed made again can differ in its last "
+                f"bits (the class densities come from scikit-learn's EM, whose sums need not be bit-identical on "
+                f"another CPU or BLAS); the hash does not say how far. ")
+        if not folder.is_dir():
+            text += (f"That fit is not yet compared with the main reading's on the main reading's queries (run "
+                     f"`{PY} {REFIT_SCRIPT} {man.get('profile') or 'PROFILE'} {man.get('dataset') or 'DATASET'} "
+                     f"{os.path.relpath(RunDir.of(run).path, config.REPO_ROOT)}` on a machine that fits it so).")
+        else:
+            plain = {k: _read(RunDir.of(run).evaluation(*k)) for k in keys}
+            text += (f"On the main reading's queries, that fit against the main reading's (`{folder.name}/`, that "
+                     f"fit minus the main reading's, 95 % paired intervals over objects): "
+                     + "; ".join(_agreement(k, plain[k], _read(rd.evaluation(*k)), sha) for k in keys
+                                 if plain[k] is not None) + ".")
+        lines += [text, ""]
+    return lines
 
 
 def command(man: dict, run, sampler: str, methods=()) -> str:
@@ -153,8 +248,9 @@ def claims_table(readings: list[Reading], man: dict, run) -> pd.DataFrame:
                 cl = judged[r.sampler]
                 if (p[0], i) in cl.index:
                     j = cl.loc[(p[0], i)]
-                    row[_name(r)] = (f"**{j['verdict']}**: contrast {j['contrast (claim: < 0)']}; {j['ours (95 % CI)']}; "
-                                     f"{j['pairs']} pairs, {j['objects']} objects")
+                    mark = f" {MARK}" if any(k in r.refit for k in T.claim_methods(c, p)) else ""
+                    row[_name(r)] = (f"**{j['verdict']}**{mark}: contrast {j['contrast (claim: < 0)']}; "
+                                     f"{j['ours (95 % CI)']}; {j['pairs']} pairs, {j['objects']} objects")
                 else:
                     need = [k for k in T.claim_methods(c, p) if k not in r.evals]
                     row[_name(r)] = f"not evaluated (run {command(man, run, r.sampler, need)})"
@@ -171,6 +267,9 @@ def accuracy_block(r: Reading, man: dict, run) -> list[str]:
     if have:
         acc = paired.estimates(paired.PairedBootstrap(have), ["accuracy", "class_accuracy"], keys=TABLE1)
         lines += [T.to_markdown(paired.wide(acc)), ""]
+    refit = [k for k in TABLE1 if k in r.refit]
+    if refit:
+        lines += [f"{MARK} {_labels(refit)}: another fit of the baseline (the note under the claims table).", ""]
     need = [k for k in TABLE1 if k not in r.evals]
     if need:
         lines += [f"Not evaluated: {_labels(need)} (run {command(man, run, r.sampler, need)}).", ""]
@@ -185,6 +284,8 @@ def _files_line(r: Reading, man: dict, run) -> str:
     else:
         files = ("`eval_<method>_<pose>.json`" if r.main else f"`eval_<method>_<pose>_{r.sampler}.json`")
         text += f"{len(r.evals)} of {len(EVALUATIONS)} settings ({files}: {_labels(r.evals)})"
+        if r.refit:
+            text += f"; with another fit of the baseline ({MARK}, the note under the claims table): {_labels(r.refit)}"
         if r.missing:
             text += f"; not evaluated: {_labels(r.missing)} (run {command(man, run, r.sampler, r.missing)})"
     if r.stale:
@@ -220,8 +321,9 @@ def section(run, man: dict) -> list[str]:
     if not any(not r.main for r in shown):
         return lines + ["", "No other reading is evaluated: the claims and Table I under the main reading are the "
                             "sections above." if shown else "No reading is evaluated yet.", ""]
-    lines += ["", T.to_markdown(claims_table(readings, man, run)), "",
-              "Table I under each reading: accuracy and class-mean accuracy (%) of each classifying setting "
+    lines += ["", T.to_markdown(claims_table(readings, man, run)), ""]
+    lines += refit_note(readings, man, run)
+    lines += ["Table I under each reading: accuracy and class-mean accuracy (%) of each classifying setting "
               "(95 % intervals over test objects):", ""]
     for r in shown:
         lines += accuracy_block(r, man, run)
