@@ -217,8 +217,8 @@ def test_a_reading_with_another_fit_of_the_baseline_is_used_marked_and_compared(
     write(RunDir(folder), known)
     note = next(line for line in _section(run).splitlines() if line.startswith("† Under `floor`"))
     assert "On the main reading's queries, that fit against the main reading's (`refit-b1/`" in note
-    assert ("BEO (known pose): the same class on 23 of 24 queries; accuracy 4.2 [" in note
-            and "mean EDT e′ (lower is better) 2 [" in note and "(24 pairs, 12 objects)" in note)
+    assert ("BEO (known pose): the same class on 23 of 24 queries, a query's EDT e′ moved by at most 30; accuracy 4.2 [" in note
+            and "mean EDT e′ (lower is better) 2.5 [" in note and "(24 pairs, 12 objects)" in note)
     assert "mean pose error" not in note.split("BEO (1-DOF)")[0]              # known pose: no pose statistic
     assert "BEO (1-DOF): not evaluated with that fit" in note
     write(RunDir(folder), fake("beo", "1dof", baseline_sha256="b1", model_sha256="m9"))

@@ -170,19 +170,26 @@ def _agreement(k, ref: dict, other: dict | None, sha: str) -> str:
                 if (other.get("request") or {}).get(key) != (ref.get("request") or {}).get(key)), None)
     if why or _baseline(other) != sha:
         return f"{LABELS.get(k, k)}: its file there is not comparable ({why or 'another baseline file'})"
-    pred = dict(zip(zip(ref["per_query"]["object"], ref["per_query"]["view"]), ref["per_query"]["pred"]))
-    q = other["per_query"]
-    shared = [(o, v, p) for o, v, p in zip(q["object"], q["view"], q["pred"]) if (o, v) in pred]
-    same = sum(pred[o, v] == p for o, v, p in shared)
+    r, q = ref["per_query"], other["per_query"]
+    mine = {(o, v): (p, e) for o, v, p, e in zip(r["object"], r["view"], r["pred"], r["edt"])}
+    shared = [(mine[o, v], (p, e)) for o, v, p, e in zip(q["object"], q["view"], q["pred"], q["edt"]) if (o, v) in mine]
+    same = sum(a[0] == b[0] for a, b in shared)
+    moved = max((abs(float(a[1]) - float(b[1])) for a, b in shared), default=0.0)
     stats = [s for s in REFIT_STATS if not (s == "accuracy" and ref.get("given_class"))
              and not (s == "pose_mean" and k[1] == "known")]
     est = paired.contrast_pair(other, ref, stats)
     parts = []
     for s, e in est.items():
-        fmt, scale, unit = paired.SHOW[s]
-        parts.append(f"{paired.NAMES[s]} {e.text(fmt, scale)}{' points' if unit == ' %' else unit}")
-    return (f"{LABELS.get(k, k)}: the same class on {same:,} of {len(shared):,} queries; "
-            + ", ".join(parts) + f" ({len(shared):,} pairs, {est[stats[0]].n_objects} objects)")
+        scale, unit = paired.SHOW[s][1:]
+        parts.append(f"{paired.NAMES[s]} {_g(scale * e.value)} [{_g(scale * e.low)}, {_g(scale * e.high)}]"
+                     f"{' points' if unit == ' %' else unit}")
+    return (f"{LABELS.get(k, k)}: the same class on {same:,} of {len(shared):,} queries, a query's EDT e′ moved by "
+            f"at most {_g(moved)}; " + ", ".join(parts) + f" ({len(shared):,} pairs, {est[stats[0]].n_objects} objects)")
+
+
+def _g(x: float) -> str:
+    """Two significant digits, no minus zero: differences between two fits are often tiny."""
+    return f"{float(x) + 0.0:.2g}"
 
 
 def refit_note(readings: list[Reading], man: dict, run) -> list[str]:
