@@ -224,6 +224,11 @@ def test_a_reading_with_another_fit_of_the_baseline_is_used_marked_and_compared(
     write(RunDir(folder), fake("beo", "1dof", baseline_sha256="b1", model_sha256="m9"))
     note = next(line for line in _section(run).splitlines() if line.startswith("† Under `floor`"))
     assert "BEO (1-DOF): its file there is not comparable (another model sha256)" in note
+    other = fake("beo", "1dof", baseline_sha256="b1")
+    other["per_query"]["object"] = [f"x{i}" for i in range(len(other["per_query"]["object"]))]
+    write(RunDir(folder), other)
+    note = next(line for line in _section(run).splitlines() if line.startswith("† Under `floor`"))
+    assert "BEO (1-DOF): its file there shares no query with the main reading's" in note
 
 
 def test_a_reading_mixing_fits_of_one_baseline_uses_only_the_main_reading_s(tmp_path):

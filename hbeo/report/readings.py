@@ -172,7 +172,10 @@ def _agreement(k, ref: dict, other: dict | None, sha: str) -> str:
         return f"{LABELS.get(k, k)}: its file there is not comparable ({why or 'another baseline file'})"
     r, q = ref["per_query"], other["per_query"]
     mine = {(o, v): (p, e) for o, v, p, e in zip(r["object"], r["view"], r["pred"], r["edt"])}
-    shared = [(mine[o, v], (p, e)) for o, v, p, e in zip(q["object"], q["view"], q["pred"], q["edt"]) if (o, v) in mine]
+    shared = [(mine[o, v], (p, e)) for o, v, p, e in zip(q["object"], q["view"], q["pred"], q["edt"])
+              if (o, v) in mine]
+    if not shared:
+        return f"{LABELS.get(k, k)}: its file there shares no query with the main reading's"
     same = sum(a[0] == b[0] for a, b in shared)
     moved = max((abs(float(a[1]) - float(b[1])) for a, b in shared), default=0.0)
     stats = [s for s in REFIT_STATS if not (s == "accuracy" and ref.get("given_class"))
