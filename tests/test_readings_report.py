@@ -239,6 +239,10 @@ def test_a_reading_mixing_fits_of_one_baseline_uses_only_the_main_reading_s(tmp_
     assert r.stale == {("beo", "1dof"): "`eval_beo_1dof_floor.json`: another baseline sha256 (b1; the main "
                                         "reading's: b0) than this reading's other beo files"}
     assert "†" not in _section(run)
+    # two other fits, neither the main reading's: every file of that baseline is set aside, whatever the order
+    write(run, fake("beo", "known", "floor", baseline_sha256="b2"), "floor")
+    r = {x.sampler: x for x in readings.run_readings(run)}["floor"]
+    assert not r.refit and set(r.stale) == {("beo", "known"), ("beo", "1dof")}
 
 
 def test_refit_script_refuses_a_run_without_the_main_reading_s_files(tmp_path):

@@ -146,8 +146,11 @@ def _other_fits(r: Reading, plain: dict, run: RunDir) -> None:
     into ``r.refit`` when every file of that baseline under the reading shares it, else into ``r.stale``."""
     other = {k: (a, b) for k, m in r.evals.items()
              if (a := _baseline(m)) is not None and (b := _baseline(plain.get(k))) is not None and a != b}
+    fits: dict = {}                     # each baseline's files under the reading, before any is set aside
+    for k, m in r.evals.items():
+        fits.setdefault(k[0], set()).add(_baseline(m))
     for k, (a, b) in other.items():
-        if len({_baseline(m) for j, m in r.evals.items() if j[0] == k[0]}) == 1:
+        if len(fits[k[0]]) == 1:
             r.refit[k] = (a, b)
         else:
             del r.evals[k]
@@ -202,6 +205,7 @@ def refit_note(readings: list[Reading], man: dict, run) -> list[str]:
     for r in readings:
         for k, pair in r.refit.items():
             fits.setdefault(pair, {}).setdefault(k, []).append(r.sampler)
+    plain = next((r.evals for r in readings if r.main), {})
     lines = []
     for (sha, main_sha), keys in fits.items():
         where = sorted({s for v in keys.values() for s in v}, key=SAMPLERS.index)
@@ -217,11 +221,10 @@ def refit_note(readings: list[Reading], man: dict, run) -> list[str]:
                      f"`{PY} {REFIT_SCRIPT} {man.get('profile') or 'PROFILE'} {man.get('dataset') or 'DATASET'} "
                      f"{os.path.relpath(RunDir.of(run).path, config.REPO_ROOT)}` on a machine that fits it so).")
         else:
-            plain = {k: _read(RunDir.of(run).evaluation(*k)) for k in keys}
             text += (f"On the main reading's queries, that fit against the main reading's (`{folder.name}/`, that "
                      f"fit minus the main reading's, 95 % paired intervals over objects): "
                      + "; ".join(_agreement(k, plain[k], _read(rd.evaluation(*k)), sha) for k in keys
-                                 if plain[k] is not None) + ".")
+                                 if k in plain) + ".")
         lines += [text, ""]
     return lines
 
