@@ -4,7 +4,8 @@
 #                    every model from scratch (RESUME=1: continue an interrupted run from its checkpoints;
 #                    SEED=N: train every model with training seed N, into results/$(PROFILE)-$(DATASET)-seedN)
 #   make test        set up, then pytest over tests/ and nbval over notebooks/ (ci profile), then the fast
-#                    tests again on numpy 2 (test-numpy2)
+#                    tests again on numpy 2 (test-numpy2); the unit tests in $(TEST_JOBS) worker processes
+#                    (pytest-xdist, a test file per worker at a time; TEST_JOBS=0: in this process, one at a time)
 #   make test-fast   set up, then pytest over tests/ without the tests marked slow (~3.5 min on 2 cores, as its
 #                    numpy-2 run in benchmarks/README.md, "The test command's wall time")
 #   make test-numpy2 the fast tests on numpy 2 (the GPU machines' stack): a second venv, $(NP2VENV), with
@@ -26,6 +27,9 @@ $(error SEED must be a whole number (0, 1, 2, ...))
 endif
 RUN    ?= results/$(PROFILE)-$(DATASET)$(if $(filter-out 0,$(SEED)),-seed$(SEED))
 NP2VENV ?= .venv-numpy2
+# the unit tests' worker processes: this machine's cores, at most 4 (each worker builds the shared ci run again)
+TEST_JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); echo $$(( n > 4 ? 4 : n )))
+XDIST  := $(if $(filter-out 0,$(TEST_JOBS)),-n $(TEST_JOBS) --dist loadfile)
 
 .PHONY: setup reproduce book docs test test-unit test-fast test-numpy2 test-notebooks benchmark clean-results
 
@@ -48,10 +52,10 @@ docs: setup
 test: setup test-unit test-notebooks test-numpy2
 
 test-unit: setup
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q $(XDIST) tests
 
 test-fast: setup
-	$(PY) -m pytest -q -m "not slow" tests
+	$(PY) -m pytest -q $(XDIST) -m "not slow" tests
 
 # pyproject.toml's dependencies and extras, constrained to requirements.txt's versions except numpy (extras
 # stripped: pip takes none in a constraints file); hbeo itself from the working tree (PYTHONPATH)
@@ -62,7 +66,7 @@ test-numpy2:
 	$(NP2VENV)/bin/python -m pip -q uninstall -y hbeo
 	$(NP2VENV)/bin/python -m ipykernel install --sys-prefix --name python3 >/dev/null
 	$(NP2VENV)/bin/python -c "import numpy; assert int(numpy.__version__.split('.')[0]) >= 2, numpy.__version__"
-	PYTHONPATH=$(CURDIR) $(NP2VENV)/bin/python -m pytest -q -m "not slow" -p no:cacheprovider -rs tests
+	PYTHONPATH=$(CURDIR) $(NP2VENV)/bin/python -m pytest -q $(XDIST) -m "not slow" -p no:cacheprovider -rs tests
 
 test-notebooks: setup
 	$(PY) -m pytest -q --nbval-lax notebooks

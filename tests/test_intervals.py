@@ -83,3 +83,19 @@ def test_class_statistics_and_several_statistics_on_the_same_resamples():
     assert interval(one, "class_mean", n_boot=300) == pytest.approx(interval(one, "accuracy", n_boot=300))
     with pytest.raises(ValueError, match="unknown statistic 'speed'"):
         intervals(m, ["accuracy", "speed"])
+
+
+def test_resamples_are_the_drawn_groups_queries_in_the_order_drawn():
+    """The vectorized resampler gives, index for index, the drawn groups' queries concatenated (the
+    definition, written out here), for groups of uneven sizes, unsorted and not contiguous."""
+    from hbeo.evaluation.intervals import _resamples
+    rng = np.random.default_rng(5)
+    groups = rng.choice(np.array(["d", "a", "c", "b", "e"]), 37, p=[0.4, 0.3, 0.15, 0.1, 0.05])
+    labels, idx = np.unique(groups, return_inverse=True)
+    members = [np.flatnonzero(idx == g) for g in range(len(labels))]
+    draw = np.random.default_rng(9)
+    for got in _resamples(groups, 20, seed=9):
+        pick = draw.integers(0, len(members), len(members))
+        np.testing.assert_array_equal(got, np.concatenate([members[g] for g in pick]))
+    single = list(_resamples(np.zeros(4), 3, seed=0))
+    assert all(np.array_equal(s, np.arange(4)) for s in single)

@@ -251,13 +251,18 @@ def test_target_rows_must_be_what_their_role_says(tmp_path):
         targets_table(tmp_path)
 
 
-def test_the_committed_docs_carry_the_generated_model_table():
-    """The model and targets tables live in the documentation's experiments page (README.md links to it)."""
+def test_the_committed_run_and_docs_carry_the_generated_model_table():
+    """The committed models.json (the specs' rows: tests/test_experiments.py) gives the run's committed
+    model_table.md, and the model and targets tables live in the documentation's experiments page (README.md links
+    to it)."""
     run = ROOT / "results" / "cpu-modelnet10-vox30"
+    table, targets = model_table(run), targets_table(run)
+    assert table + "\n" + targets == RunDir(run).model_table.read_text(), \
+        f"{RunDir(run).model_table} is stale: python -m hbeo report --model-table --run results/cpu-modelnet10-vox30"
     text = (ROOT / "docs" / "experiments.md").read_text()
-    assert replace_block(text, model_table(run)) == text, \
+    assert replace_block(text, table) == text, \
         "docs/experiments.md's model table is stale: python -m hbeo report --model-table --run " \
         "results/cpu-modelnet10-vox30 --readme docs/experiments.md"
-    assert replace_block(text, targets_table(run), begin=TARGETS_BEGIN, end=TARGETS_END) == text, \
+    assert replace_block(text, targets, begin=TARGETS_BEGIN, end=TARGETS_END) == text, \
         "docs/experiments.md's targets table is stale: python -m hbeo report --model-table --run " \
         "results/cpu-modelnet10-vox30 --readme docs/experiments.md"

@@ -62,13 +62,18 @@ STATISTICS = {
 
 
 def _resamples(groups: np.ndarray, n_boot: int, seed: int):
-    """``n_boot`` index arrays, each the queries of as many groups drawn with replacement."""
+    """``n_boot`` index arrays, each the queries of as many groups drawn with replacement: the drawn groups'
+    queries one group after another, in the order drawn (each group's in their order in ``groups``)."""
     _, idx = np.unique(groups, return_inverse=True)
-    members = np.split(np.argsort(idx, kind="stable"), np.cumsum(np.bincount(idx))[:-1])
+    order = np.argsort(idx, kind="stable")              # the queries, group after group
+    sizes = np.bincount(idx)
+    starts = np.cumsum(sizes) - sizes                   # where each group begins in ``order``
     rng = np.random.default_rng(seed)
     for _ in range(n_boot):
-        pick = rng.integers(0, len(members), len(members))
-        yield np.concatenate([members[g] for g in pick])
+        pick = rng.integers(0, len(sizes), len(sizes))
+        n = sizes[pick]
+        # output position j of the k-th drawn group reads order[starts[pick[k]] + j - (where group k begins)]
+        yield order[np.repeat(starts[pick] - (np.cumsum(n) - n), n) + np.arange(n.sum())]
 
 
 def _check(values: np.ndarray, groups: np.ndarray, level: float) -> None:
