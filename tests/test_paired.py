@@ -253,3 +253,36 @@ def test_the_bootstrap_median_is_np_median_of_each_resample():
         want = [np.median(np.repeat(v, row.astype(int))) for row in w]
         np.testing.assert_allclose(got, want)
     assert _weighted_median(np.array([1.0, 4.0]), np.ones((1, 2)))[0] == 2.5
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")   # a class of the subset undrawn
+def test_resample_weights_and_statistics_are_their_definitions_written_out():
+    """The resamples are the seeded draws within each class counted per object (``np.add.at`` over the draws,
+    written out here), and a resample's mean, class mean and median are those of the queries it holds, each query
+    repeated as often as its object was drawn, over a method that answered a subset of the objects with uneven
+    views (the per-object sums the implementation uses give the same numbers)."""
+    rng = np.random.default_rng(4)
+    objects = [(c, f"{c}_{i:04d}") for c in CLS for i in range(10)]             # fake's own
+    full = fake("hbeo", "3dof", lambda k: rng.random() < 0.6, lambda k: rng.exponential(20), lambda k: rng.random())
+    keep = [k for k in range(90) if k % 7]                   # objects with 1, 2 or 3 views
+    full["per_query"] = {col: [v[k] for k in keep] for col, v in full["per_query"].items()}
+    boot = paired.PairedBootstrap([full, fake("beo", "known", True, 1.0, 1.0, objects=objects[::2], views=1)],
+                                  n_boot=30, seed=7)
+    want = np.zeros_like(boot.weights)
+    draw = np.random.default_rng(7)
+    for c in CLS:                                             # the objects sorted by class, then key
+        members = np.arange(len(CLS) * 10)[CLS.index(c) * 10:(CLS.index(c) + 1) * 10]
+        for b, row in enumerate(draw.integers(0, 10, (30, 10))):
+            np.add.at(want[b], members[row], 1.0)
+    np.testing.assert_array_equal(boot.weights, want)
+    for key, on in ((("hbeo", "3dof"), None), (("hbeo", "3dof"), [("beo", "known")])):
+        q = boot._table(key, on)
+        reps = boot.weights[:, q["key"].map(boot.index).to_numpy()].astype(int)
+        for what, rule in (("accuracy", lambda x, c: x.mean()), ("pose_mean", lambda x, c: x.mean()),
+                           ("pose_median", lambda x, c: np.median(x)),
+                           ("class_accuracy", lambda x, c: np.mean([x[c == k].mean() if (c == k).any() else np.nan
+                                                                     for k in CLS]))):       # a class undrawn: NaN
+            v, cls = paired.STATISTICS[what][0](q), q["class"].to_numpy()
+            _, got, _ = boot.draws(key, what, on)
+            expect = [rule(np.repeat(v, r), np.repeat(cls, r)) for r in reps]
+            np.testing.assert_allclose(got, expect, rtol=1e-12, err_msg=f"{key} {what} on {on}")

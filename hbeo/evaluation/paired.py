@@ -142,12 +142,13 @@ class PairedBootstrap:
         objs = objs.sort_values(["class", "key"]).reset_index(drop=True)
         self.index = {k: i for i, k in enumerate(objs["key"])}
         rng = np.random.default_rng(seed)
-        self.weights = np.zeros((n_boot, len(objs)), np.float64)
+        self.weights = np.zeros((n_boot, len(objs)), np.float64)       # times each object is drawn
+        rows = np.arange(n_boot)[:, None] * len(objs)
         for _, members in objs.groupby("class").groups.items():
             members = np.asarray(members)
             draws = rng.integers(0, len(members), (n_boot, len(members)))
-            for b in range(n_boot):
-                np.add.at(self.weights[b], members[draws[b]], 1.0)
+            self.weights += np.bincount((rows + members[draws]).ravel(), minlength=self.weights.size).reshape(
+                self.weights.shape)
 
     def _table(self, key, on=None) -> pd.DataFrame:
         if key not in self.q:
@@ -171,14 +172,20 @@ class PairedBootstrap:
             raise ValueError(f"{key}: no queries for {what}" + (f" shared with {on}" if on else ""))
         fn, how = STATISTICS[what]
         v = fn(q)
-        W = self.weights[:, q["key"].map(self.index).to_numpy()]
-        if how == "mean":
-            return float(v.mean()), (W @ v) / W.sum(axis=1), q
+        obj = q["key"].map(self.index).to_numpy()
         if how == "median":
-            return float(np.median(v)), _weighted_median(v, W), q
+            return float(np.median(v)), _weighted_median(v, self.weights[:, obj]), q
+        # a resample's mean is sum(weight of the object * its values' sum) / sum(weight * its query count): one
+        # column of weights per object rather than per query
+        objs, of = np.unique(obj, return_inverse=True)
+        W = self.weights if len(objs) == self.weights.shape[1] else self.weights[:, objs]    # objs: sorted
+        total, count = np.bincount(of, v, len(objs)), np.bincount(of, None, len(objs))
+        if how == "mean":
+            return float(v.mean()), (W @ total) / (W @ count), q
         cls = q["class"].to_numpy()
-        per = [(v[cls == c].mean(), (W[:, cls == c] @ v[cls == c]) / W[:, cls == c].sum(axis=1))
-               for c in np.unique(cls)]
+        obj_cls = cls[np.unique(of, return_index=True)[1]]
+        per = [(v[cls == c].mean(), (W[:, k] @ total[k]) / (W[:, k] @ count[k]))
+               for c in np.unique(cls) for k in [obj_cls == c]]
         return float(np.mean([p[0] for p in per])), np.mean([p[1] for p in per], axis=0), q
 
     def _interval(self, draws: np.ndarray) -> tuple[float, float]:
