@@ -213,9 +213,21 @@ class Run:
         return run_gridsets(self.dir, self.dataset, self.profile, progress=progress, rebuild=rebuild)
 
     def subspace(self, progress: bool = True) -> ObjectSubspace:
-        """The run's subspace: loaded, or fitted (:meth:`fit_subspace`) when missing."""
+        """The run's subspace: loaded; when missing, the one the run's model file holds (the subspace HBEO was
+        trained on, and so the run's: a committed run keeps its model, not its subspace), saved as the run's;
+        else fitted (:meth:`fit_subspace`). Fitting it again would give another subspace on another CPU kind
+        (VBPCA's sums in another order change its last bits), and BEO and the renders' coefficients with it."""
         if self.dir.subspace.exists():
             return ObjectSubspace.load(self.dir.subspace)
+        if self.dir.model.exists():
+            from hbeo.model.modelfile import read_subspace
+            from hbeo.subspace.basis import data_fingerprint
+            sub, train = read_subspace(self.dir.model), self.grids(progress=progress)["train"]
+            if sub.fingerprint_ == data_fingerprint(train.grids, train.labels):    # fitted on this run's grids
+                print(f"[hbeo] {self.dir.subspace} missing: the subspace of {self.dir.model} (the one it was "
+                      f"trained on)", flush=True)
+                sub.save(self.dir.subspace)
+                return sub
         return self.fit_subspace(progress)
 
     def fit_subspace(self, progress: bool = True) -> ObjectSubspace:

@@ -101,6 +101,39 @@ def test_a_missing_baseline_is_fitted_in_a_folder_that_holds_only_the_committed_
         run.baseline("nope")
 
 
+def test_a_missing_subspace_is_the_one_the_run_s_model_was_trained_on(ci_model, ci_run, copy_run, tmp_path,
+                                                                      monkeypatch):
+    """A committed run keeps its model, not its subspace: the run's subspace is then the model file's (the one
+    HBEO was trained on, byte for byte), not a new fit, which on another CPU kind differs in its last bits and
+    changes BEO with it; a model whose subspace was fitted on other grids is not taken for the run's."""
+    import zipfile
+    from hbeo.model.modelfile import read_subspace
+    from hbeo.subspace import basis
+    folder = copy_run(ci_run, tmp_path / "run", names=[ci_model.name])
+    run = Run.open("ci", "procedural", folder.path)
+    monkeypatch.setattr(Run, "fit_subspace", lambda self, progress=True: pytest.fail("the subspace fitted again"))
+    sub = run.subspace(progress=False)
+    assert folder.subspace.read_bytes() == zipfile.ZipFile(folder.model).read("subspace.npz")
+    assert sub.fingerprint_ == read_subspace(ci_model).fingerprint_ and run.baseline("beo", progress=False)
+    other = copy_run(ci_run, tmp_path / "other", names=[ci_model.name])
+    monkeypatch.setattr(basis, "data_fingerprint", lambda grids, labels: "other grids")
+    fitted = []
+    monkeypatch.setattr(Run, "fit_subspace", lambda self, progress=True: fitted.append(self) or sub)
+    assert Run.open("ci", "procedural", other.path).subspace(progress=False) is sub and len(fitted) == 1
+    assert not other.subspace.exists()
+
+
+def test_read_subspace_takes_an_hbeo_file_s_subspace_and_refuses_other_files(ci_model, tmp_path):
+    from hbeo.errors import DataError
+    from hbeo.model.modelfile import read_subspace
+    sub = read_subspace(ci_model)
+    assert sub.basis_.shape[0] == HBEO.load(ci_model).subspace.basis_.shape[0]
+    bad = tmp_path / "model.hbeo"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(DataError, match="model.hbeo.*not a readable hbeo model file"):
+        read_subspace(bad)
+
+
 # ------------------------------------------------------------------ papermill parameters
 
 PARAMS = 'profile = "ci"\ndataset = "procedural"\nepochs = None  # the profile\'s\nwidth, height = 80, 60\n'

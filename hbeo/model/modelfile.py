@@ -222,6 +222,17 @@ def _read_subspace(path: Path, data: bytes) -> ObjectSubspace:
         raise DataError(path, f"{SUBSPACE} is not a valid subspace ({type(err).__name__}: {err})") from None
 
 
+def read_subspace(path) -> ObjectSubspace:
+    """The subspace an ``hbeo`` model file holds (the one its network was trained on), checked as
+    :func:`read_model` checks it, without reading the weights or building the network."""
+    path = Path(path)
+    members = _read_members(path)
+    check_meta(path, parse_meta(path, members[META]), "hbeo")
+    if SUBSPACE not in members:
+        raise DataError(path, f"{KINDS['hbeo']} file must hold {SUBSPACE}; it holds {', '.join(members)}")
+    return _read_subspace(path, members[SUBSPACE])
+
+
 def read_model(path, kind: str, build: Callable[[dict], torch.nn.Module]) -> ModelFile:
     """Read and check a model file of ``kind`` (``hbeo`` / ``voxcnn``); ``build(net_cfg)`` makes the
     network the weights must fit. Every problem is a DataError naming the file (see the module

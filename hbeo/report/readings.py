@@ -20,7 +20,7 @@ reading's file of the same setting (else the main HBEO file) records its request
 model file and seed, and for the same setting the same objects: a file left from another model is listed as
 stale, not compared. Its baseline file (``baseline_sha256``) may be another than the main reading's when every
 file of that baseline under the reading shares it: a fit of the same training grids, recipe and seed made again
-can differ in its last bits (BEO's class densities come from scikit-learn's EM, whose sums need not be
+can differ in its last bits (VBPCA's subspace and the class densities scikit-learn's EM fits in it need not be
 bit-identical on another CPU or BLAS), and the hash does not say how far. Such a reading is used and marked
 (:attr:`Reading.refit`, † in the claims table), and the note under the table measures how far: that fit against
 the main reading's on the main reading's own queries, from the run's ``refit-<sha>/`` folder
@@ -214,8 +214,8 @@ def refit_note(readings: list[Reading], man: dict, run) -> list[str]:
         text = (f"{MARK} Under {', '.join(f'`{s}`' for s in where)}, {_labels(keys)} use another fit of "
                 f"{', '.join(sorted({k[0].upper() for k in keys}))}'s baseline file (sha256 {sha}; the main reading's: "
                 f"{main_sha}). A fit of the same training grids, recipe and seed made again can differ in its last "
-                f"bits (the class densities come from scikit-learn's EM, whose sums need not be bit-identical on "
-                f"another CPU or BLAS); the hash does not say how far. ")
+                f"bits (VBPCA's subspace and the class densities scikit-learn's EM fits in it need not be "
+                f"bit-identical on another CPU or BLAS); the hash does not say how far. ")
         if not folder.is_dir():
             text += (f"That fit is not yet compared with the main reading's on the main reading's queries (run "
                      f"`{PY} {REFIT_SCRIPT} {man.get('profile') or 'PROFILE'} {man.get('dataset') or 'DATASET'} "
