@@ -4,9 +4,10 @@ Usage: python scripts/refit.py PROFILE DATASET RUN [--method beo] [--keep]
 
 Some baselines are fitted beside the model (BEO's class densities: ``beo.npz``) and not committed; fitted again
 on another CPU from the same training grids, recipe and seed, the file can differ in its last bits (VBPCA's
-subspace and scikit-learn's EM sum in another order), so evaluations that record another ``baseline_sha256`` are not the run's own. This
-script fits the baseline in a temporary folder beside links to RUN's model, manifest, training grids and
-subspace (RUN itself is not written until the end), evaluates every setting of that baseline in
+subspace and scikit-learn's EM sum in another order), so evaluations that record another ``baseline_sha256`` are
+not the run's own. This script fits the baseline in a temporary folder beside links to RUN's model, manifest,
+training grids and subspace (where RUN has no subspace, the one its model holds: ``hbeo.run.Run.subspace``; RUN
+itself is not written until the end), evaluates every setting of that baseline in
 ``hbeo.evaluation.protocol.EVALUATIONS`` under the run's main reading on the same queries as RUN's
 ``eval_<method>_<pose>.json``, and, when the fit's sha256 differs from the one those files record, moves the
 evaluations to ``RUN/refit-<sha>/`` (``hbeo.report.readings.refit_folder``), where REPRODUCTION.md's section on
