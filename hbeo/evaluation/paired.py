@@ -177,13 +177,13 @@ class PairedBootstrap:
             return float(np.median(v)), _weighted_median(v, self.weights[:, obj]), q
         # a resample's mean is sum(weight of the object * its values' sum) / sum(weight * its query count): one
         # column of weights per object rather than per query
-        objs, of = np.unique(obj, return_inverse=True)
+        objs, first, of = np.unique(obj, return_index=True, return_inverse=True)
         W = self.weights if len(objs) == self.weights.shape[1] else self.weights[:, objs]    # objs: sorted
         total, count = np.bincount(of, v, len(objs)), np.bincount(of, None, len(objs))
         if how == "mean":
             return float(v.mean()), (W @ total) / (W @ count), q
         cls = q["class"].to_numpy()
-        obj_cls = cls[np.unique(of, return_index=True)[1]]
+        obj_cls = cls[first]                                # each object's class, from its first query
         per = [(v[cls == c].mean(), (W[:, k] @ total[k]) / (W[:, k] @ count[k]))
                for c in np.unique(cls) for k in [obj_cls == c]]
         return float(np.mean([p[0] for p in per])), np.mean([p[1] for p in per], axis=0), q
