@@ -99,7 +99,8 @@ def cmd_train(args) -> int:
     from hbeo.model.trainingdata import ViewOptions
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead",
-            "draw_workers", "augment_mirror", "image_size", "batch_size", "lr", "warmup_steps")  # TrainOptions' names
+            "draw_workers", "augment_mirror", "image_size", "batch_size", "lr", "warmup_steps",
+            "noise")                                                                      # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
                         **{k: getattr(args, k) for k in same})
@@ -374,6 +375,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--augment-mirror", action="store_true",
                    help="mirror each training view left-right with probability 1/2 every epoch, its object across "
                         "its class's mirror plane (exact; --data memory; default off)")
+    p.add_argument("--noise", action="store_true",
+                   help="train on views with the Kinect-like sensor noise, each view its own draw (render settings: "
+                        "a run folder with clean renderings refuses it; use another --out)")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=POSITIVE, help="distance-insensitive input: zoom to this object distance (m)")
     p.add_argument("--seed", type=NONNEG, help="training seed (default 0)")

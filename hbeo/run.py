@@ -350,7 +350,7 @@ class Run:
         seed = self.training_seed if opts.seed is None else opts.seed
         prof = self.profile
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
-                                               backend=opts.backend, image_size=opts.image_size)
+                                               backend=opts.backend, image_size=opts.image_size, noise=opts.noise)
         if settings.backend == "torch":                   # grids only: refuse a mesh dataset before any work
             if opts.backend != "torch" and not all(r.has_grid for r in self.records("train")):
                 print(f"[hbeo] profile {prof.name} renders with torch, which needs grids; {self.dataset.name} has "

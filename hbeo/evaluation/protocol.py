@@ -218,7 +218,8 @@ def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
     for i, r in enumerate(records):
         first.setdefault(r.cls, (i, r))
     picks = list(first.values())[:n]
-    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": 1, "seed": seed})
+    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": 1, "seed": seed,
+                                   "noise": False})   # the queries are clean, as evaluate's
     viewer, views = ObjectViews(rs), []
     try:
         for i, r in picks:

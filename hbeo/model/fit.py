@@ -143,7 +143,9 @@ class TrainOptions:
     image_size: (width, height) of the training images (None: the profile's), the camera
     :meth:`~hbeo.conventions.Intrinsics.kinect` scaled to it: the same views at another resolution;
     batch_size / lr: the optimizer's batch and peak learning rate (None: the profile's); warmup_steps: the linear
-    warm-up's steps (None: 100, or one epoch when shorter)."""
+    warm-up's steps (None: 100, or one epoch when shorter); noise: train on views with the Kinect-like sensor
+    noise (:class:`hbeo.render.noise.SensorNoise`, each view its own draw; render settings: a run folder holds
+    one rendered set, so a clean set already there is refused, not mixed)."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -171,6 +173,7 @@ class TrainOptions:
     batch_size: int | None = None
     lr: float | None = None
     warmup_steps: int | None = None
+    noise: bool = False
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
@@ -266,6 +269,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["source"] = source
     if opts.augment_mirror:           # runs without it keep the settings (and checkpoints) they had
         how["augment_mirror"] = True
+    if data.settings.noise:           # clean runs keep the settings (and checkpoints) they had
+        how["noise"] = True
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
         how["backend"] = "torch"
         if augment_roll:                    # rolls drawn by reading position (render_batch's roll_keys)

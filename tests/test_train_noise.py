@@ -1,0 +1,50 @@
+"""``train --noise``: training views carry the Kinect-like sensor noise, recorded in the rendered set, the
+checkpoint, the provenance and the model file; a run folder's clean set is refused rather than mixed."""
+import json
+
+import numpy as np
+import pytest
+
+
+@pytest.mark.slow
+def test_train_with_sensor_noise_renders_noisy_views_records_it_and_never_mixes_sets(ci_render, ci_run, copy_run,
+                                                                                    tmp_path, capsys):
+    from hbeo import cli
+    from hbeo.model.inference import HBEO
+    from hbeo.model.loop import load_checkpoint
+    from hbeo.render.torch_datasets import DepthShards
+    run = copy_run(ci_run, tmp_path / "run", names=["grids_train.npz", "grids_test.npz", "subspace.npz"])
+    args = ["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
+            "--max-steps", "2", "--quiet"]
+    assert cli.main([*args, "--noise"]) == 0
+    noisy = DepthShards(run.renders("train"))
+    clean = DepthShards(ci_run.renders("train"))
+    assert noisy.manifest.settings.noise and not clean.manifest.settings.noise
+    assert noisy.object_ids == clean.object_ids
+    a, b = noisy[0]["depth"].numpy(), clean[0]["depth"].numpy()
+    assert a.shape == b.shape and not np.array_equal(a, b)        # the same view, with noise drawn on it
+    assert np.array_equal(noisy[0]["rotation"].numpy(), clean[0]["rotation"].numpy())
+    model = HBEO.load(run.model)
+    assert model.settings.render["noise"] is True
+    assert load_checkpoint(run.training(run.model) / "checkpoint.pt")["settings"]["train"]["data"]["noise"] is True
+    info = json.loads((run.training(run.model) / "provenance.json").read_text())
+    assert info["options"]["noise"] is True
+    capsys.readouterr()
+    assert cli.main([*args, "--name", "clean.hbeo"]) == 2          # the folder's set is noisy: refused, not mixed
+    err = capsys.readouterr().err
+    assert "different settings" in err and "noise" in err and not run.model_file("clean.hbeo").exists()
+
+
+@pytest.mark.slow
+def test_streamed_training_with_noise_keeps_it_in_the_checkpoint(ci_subspace, ci_run, copy_run, tmp_path):
+    """--data stream renders as it trains: the noise is in the checkpoint's data settings, so a clean run never
+    resumes a noisy one's checkpoint (or the other way round), and in the model file."""
+    from hbeo import cli
+    from hbeo.model.inference import HBEO
+    from hbeo.model.loop import load_checkpoint
+    run = copy_run(ci_run, tmp_path / "run", names=["grids_train.npz", "grids_test.npz", "subspace.npz"])
+    assert cli.main(["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
+                     "--max-steps", "1", "--data", "stream", "--noise", "--quiet"]) == 0
+    data = load_checkpoint(run.training(run.model) / "checkpoint.pt")["settings"]["train"]["data"]
+    assert data["noise"] is True and data["source"] == "stream"
+    assert HBEO.load(run.model).settings.render["noise"] is True and not run.renders("train").exists()
