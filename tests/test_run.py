@@ -132,6 +132,13 @@ def test_read_subspace_takes_an_hbeo_file_s_subspace_and_refuses_other_files(ci_
     bad.write_bytes(b"not a zip")
     with pytest.raises(DataError, match="model.hbeo.*not a readable hbeo model file"):
         read_subspace(bad)
+    import zipfile                                       # the members read_model wants, exactly
+    with zipfile.ZipFile(ci_model) as z, zipfile.ZipFile(bad, "w") as out:
+        for name in z.namelist():
+            if name != "subspace.npz":
+                out.writestr(z.getinfo(name), z.read(name))
+    with pytest.raises(DataError, match="must hold exactly .*subspace.npz; it holds"):
+        read_subspace(bad)
 
 
 # ------------------------------------------------------------------ papermill parameters

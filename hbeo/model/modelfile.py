@@ -222,14 +222,23 @@ def _read_subspace(path: Path, data: bytes) -> ObjectSubspace:
         raise DataError(path, f"{SUBSPACE} is not a valid subspace ({type(err).__name__}: {err})") from None
 
 
+def _checked_members(path: Path, kind: str) -> tuple[dict, dict]:
+    """The members of model file ``path`` and its parsed metadata, checked for ``kind``: the metadata, and
+    exactly the members that kind holds (DataError naming the file)."""
+    members = _read_members(path)
+    meta = parse_meta(path, members[META])
+    check_meta(path, meta, kind)
+    if sorted(members) != sorted(MEMBERS[kind]):
+        raise DataError(path, f"{KINDS[kind]} file must hold exactly {', '.join(MEMBERS[kind])}; "
+                              f"it holds {', '.join(members)}")
+    return members, meta
+
+
 def read_subspace(path) -> ObjectSubspace:
     """The subspace an ``hbeo`` model file holds (the one its network was trained on), checked as
     :func:`read_model` checks it, without reading the weights or building the network."""
     path = Path(path)
-    members = _read_members(path)
-    check_meta(path, parse_meta(path, members[META]), "hbeo")
-    if SUBSPACE not in members:
-        raise DataError(path, f"{KINDS['hbeo']} file must hold {SUBSPACE}; it holds {', '.join(members)}")
+    members, _ = _checked_members(path, "hbeo")
     return _read_subspace(path, members[SUBSPACE])
 
 
@@ -240,12 +249,7 @@ def read_model(path, kind: str, build: Callable[[dict], torch.nn.Module]) -> Mod
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {tuple(KINDS)}, got {kind!r}")
     path = Path(path)
-    members = _read_members(path)
-    meta = parse_meta(path, members[META])
-    check_meta(path, meta, kind)
-    if sorted(members) != sorted(MEMBERS[kind]):
-        raise DataError(path, f"{KINDS[kind]} file must hold exactly {', '.join(MEMBERS[kind])}; "
-                              f"it holds {', '.join(members)}")
+    members, meta = _checked_members(path, kind)
     try:
         tensors = safetensors.torch.load(members[WEIGHTS])
     except Exception as err:
