@@ -258,7 +258,7 @@ def test_evaluate_on_the_validation_split_scores_held_out_training_objects_and_l
     rd = copy_run(ci_model.parent, tmp_path / "run")
     for seed in (0, 1):
         out = run("evaluate", "--model", str(rd.model), "--split", "val", "--seed", str(seed), "--dataset",
-                  "procedural", "--out", str(tmp_path / f"val{seed}.json"), "--quiet")
+                  "procedural", "--out", str(tmp_path / f"val{seed}.json"), "--quiet", *(["--noise"] if seed else []))
         assert out.returncode == 0, out.stderr
     m = json.loads((tmp_path / "val0.json").read_text())
     ds = datasets.get_dataset("procedural", profile=config.get_profile("ci"))
@@ -271,6 +271,7 @@ def test_evaluate_on_the_validation_split_scores_held_out_training_objects_and_l
     assert held == {r.id for r in val}
     log = pd.read_csv(RunDir(rd.path).validation_log)
     assert list(log.seed) == [0, 1] and set(log.model) == {"model.hbeo"} and (log.n_queries == 10).all()
+    assert list(log.noise) == [False, True] and set(log.sampler) == {"so3"}    # a noisy evaluation says so
     assert log.accuracy.iloc[0] == m["accuracy"]
 
 

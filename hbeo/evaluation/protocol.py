@@ -321,8 +321,8 @@ def _val_split(model) -> str:
 
 def record_validation(run, model_path, model, metrics: dict) -> dict:
     """Add one row to the run's ``validation.csv`` (:attr:`RunDir.validation_log`): when, which model
-    file (name, sha256, rotation head, roll augmentation), how it was evaluated and its validation
-    scores; the file is rewritten atomically. Every configuration tried is meant to leave its row,
+    file (name, sha256, rotation head, roll augmentation), how it was evaluated (views, seed, sampler, sensor
+    noise, rolls, ...) and its validation scores; the file is rewritten atomically. Every configuration tried is meant to leave its row,
     so a choice made on validation can be checked against all the others. Returns the row."""
     import datetime
     run = RunDir.of(run)
@@ -333,7 +333,8 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
            "method": metrics["method"] + ("+verify" if metrics.get("verify") else ""), "pose": metrics["pose"],
            "ensemble": ";".join(str(f["file"]) for f in metrics.get("ensemble") or []),
            "rolls": metrics.get("rolls"), "mirror": metrics.get("mirror"), "prior_tau": metrics.get("prior_tau"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
-           "views": metrics["views"], "seed": metrics["seed"], "n_objects": metrics["n_objects"],
+           "views": metrics["views"], "seed": metrics["seed"], "sampler": metrics.get("sampler"),
+           "noise": metrics.get("noise"), "n_objects": metrics["n_objects"],
            "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"],
            "class_mean_accuracy": metrics.get("class_mean_accuracy"), "val_split": _val_split(model),
            "pose_median_deg": pe["median"],
