@@ -183,7 +183,7 @@ def cmd_evaluate(args) -> int:
                             pose=args.pose, precision=args.precision, rolls=args.rolls, verify=verify_config(args.verify, args.verify_set),
                             max_steps=args.max_steps, progress=not args.quiet, prior_tau=args.prior_tau,
                             members=args.ensemble, mirror=args.mirror, completion=_completion(args),
-                            batched=args.batch)
+                            batched=args.batch, noise_scale=args.noise_scale)
     short = {k: metrics[k] for k in ("method", "pose", "accuracy", "pose_error_deg", "completion", "runtime_ms")}
     if "completion_paper" in metrics:               # the paper's rule on the same queries, beside
         short["completion_paper"] = {k: v for k, v in metrics["completion_paper"].items() if k != "per_query"}
@@ -435,6 +435,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=SAMPLERS,
                    help="viewpoints (default: the model's training sampler); " + _SAMPLER_HELP)
     p.add_argument("--noise", action="store_true", help="apply Kinect-like sensor noise")
+    p.add_argument("--noise-scale", type=COUNT, default=1, metavar="S",
+                   help="with --noise: render each query at S times the model's image size, apply the noise there "
+                        "and read every S-th pixel, as predict reads a finer frame (8 at 80x60: a 640x480 "
+                        "sensor); 1 (default): the noise at the model's size, coarser relative to the object")
     p.add_argument("--per-class", type=COUNT, help="at most this many objects per class")
     p.add_argument("--strict", action="store_true",
                    help="exit 2 when any object could not be evaluated (default: report it, score the rest)")

@@ -14,7 +14,8 @@ paper's; null for the baselines), ``class_prior`` (``{tau, source, counts}`` of 
 ``ensemble`` (the files, ``{file, sha256}``, of the models whose answers HBEO's were averaged with, else null),
 ``completion_rule`` (only when HBEO completed by another rule than the paper's, :mod:`hbeo.model.completion_rule`:
 by default it does, never leaving a grid empty),
-``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``, ``verify`` (HBEO's
+``hbeo_version``, ``dataset``, ``split``, ``views``, ``seed``, ``sampler``, ``noise``, ``noise_scale`` (only
+where the noise was applied at a finer sensor, :attr:`hbeo.render.views.RenderSettings.noise_scale`), ``verify`` (HBEO's
 verify settings, :class:`hbeo.model.verify.VerifyConfig`, or null),
 ``n_objects`` (objects scored), ``n_queries``, ``failures`` (objects that could not be rendered
 or predicted, ``{file, reason, step, object, split}``: left out, the others still scored)
@@ -118,7 +119,7 @@ class EvaluationSetup:
 def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: int = 0, sampler: str | None = None,
                    noise: bool = False, per_class: int | None = None, progress: bool = True,
                    chunk: int = 64, method=None, pose: str | None = None, rolls: int = 1, verify=None,
-                   batched: bool = False) -> dict:
+                   batched: bool = False, noise_scale: int = 1) -> dict:
     """Render, predict and score; returns the metrics dict described in the module docstring.
 
     ``model`` (an HBEO model) fixes the evaluation's setup (:meth:`EvaluationSetup.of_model`).
@@ -126,7 +127,9 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
     ``rolls`` and ``verify``), or any :class:`~hbeo.evaluation.method.Method` (a baseline,
     :mod:`hbeo.baselines.methods`) scored at pose setting ``pose`` (None: its first). See
     :func:`evaluate_method`, which needs no HBEO model. ``batched``: HBEO's one pass answers a chunk of views
-    in one network call (:meth:`~hbeo.evaluation.method.HBEOMethod.predict_views`; not with ``verify``)."""
+    in one network call (:meth:`~hbeo.evaluation.method.HBEOMethod.predict_views`; not with ``verify``).
+    ``noise_scale``: with ``noise``, where the noise is applied (:attr:`hbeo.render.views.RenderSettings.noise_scale`;
+    the metrics carry it where it is not 1)."""
     if verify is not None and method is not None:
         raise ValueError("verify applies to HBEO itself, not to a baseline")
     own = method is None
@@ -134,7 +137,7 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
         method = HBEOMethod(model, rolls=rolls, verify=verify)
     m = evaluate_method(method, dataset, EvaluationSetup.of_model(model), split=split, views=views, seed=seed,
                         sampler=sampler, noise=noise, per_class=per_class, progress=progress, chunk=chunk, pose=pose,
-                        batched=batched)
+                        batched=batched, noise_scale=noise_scale)
     device = getattr(model, "device", None)
     if own and device is not None and device.type != "cpu":      # runtimes are then that device's
         m["device"] = str(device)
@@ -143,7 +146,8 @@ def evaluate_model(model, dataset, split: str = "test", views: int = 1, seed: in
 
 def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1,
                     seed: int = 0, sampler: str | None = None, noise: bool = False, per_class: int | None = None,
-                    progress: bool = True, chunk: int = 64, pose: str | None = None, batched: bool = False) -> dict:
+                    progress: bool = True, chunk: int = 64, pose: str | None = None, batched: bool = False,
+                    noise_scale: int = 1) -> dict:
     """Render ``views`` query views of each ``split`` object, let ``method`` answer each, score: the
     metrics dict described in the module docstring (:func:`score_methods`, one method; ``batched``: its
     batched path where the method has one, recorded as ``batched`` in the metrics)."""
@@ -152,13 +156,13 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
     rows, failures, records, rs = score_methods({method.name: (method, pose)}, dataset, setup, split, views, seed,
                                                 sampler, noise, per_class, progress, chunk,
                                                 desc=f"evaluate {method.name}/{pose} {dataset.name}/{split}",
-                                                batched=batched)
+                                                batched=batched, noise_scale=noise_scale)
     rows = rows[method.name]
     if not rows:
         raise BatchError(None, f"{dataset.name}/{split}: no view could be evaluated "
                                f"({len(failures)} of {len(records)} objects failed)", failures)
     out = summarize(rows, setup.classes, dataset.name, split, views, seed, rs.sampler, noise,
-                    len(records) - len(failures))
+                    len(records) - len(failures), rs.noise_scale)
     out["failures"] = failures
     extra = {"precision": None, "rolls": None, "mirror": None, "verify": None, "prior_tau": None, "class_prior": None,
              "ensemble": None, **method.describe()}
@@ -173,7 +177,7 @@ def evaluate_method(method: Method, dataset, setup: EvaluationSetup, split: str 
 def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "test", views: int = 1, seed: int = 0,
                   sampler: str | None = None, noise: bool = False, per_class: int | None = None,
                   progress: bool = True, chunk: int = 64, desc: str = "evaluate", warm_up: bool = True,
-                  batched: bool = False):
+                  batched: bool = False, noise_scale: int = 1):
     """The one evaluation loop: every method of ``methods`` ({key: (Method, pose setting)}) answers
     the same query views, each rendered once, in order.
 
@@ -183,7 +187,7 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
     order, each ``ms`` the batch's time shared equally. Methods without it answer one view at a time.
 
     Views come from :meth:`hbeo.render.views.ObjectViews.query_views` with the setup's render
-    settings, ``views`` per object, ``seed``, ``noise`` and (if given) ``sampler``: view j of an
+    settings, ``views`` per object, ``seed``, ``noise`` (at ``noise_scale``) and (if given) ``sampler``: view j of an
     object is drawn from a stream keyed by ``seed``, the split, the object's class and id, and j
     (the paired protocol: every method, object subset and view count sees the same image for the
     same (object, view)). ``split``: ``train``, ``test`` or ``val`` (:func:`split_records`; its
@@ -201,7 +205,8 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
                             f"(name, poses, predict_view, describe; hbeo.evaluation.method)")
         if pose not in m.poses:
             raise ValueError(f"method {m.name!r} does not take pose {pose!r}; it takes {', '.join(m.poses)}")
-    over = {"views_per_object": views, "seed": seed, "noise": bool(noise), **({"sampler": sampler} if sampler else {})}
+    over = {"views_per_object": views, "seed": seed, "noise": bool(noise), "noise_scale": int(noise_scale),
+            **({"sampler": sampler} if sampler else {})}
     rs = RenderSettings.from_dict({**setup.render, **over})
     K, classes, means = setup.intrinsics, tuple(setup.classes), setup.class_means
     records = split_records(dataset, split, per_class, setup.profile)
@@ -338,8 +343,9 @@ def class_mean_accuracy(true, pred) -> float:
 
 
 def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, seed: int, sampler: str,
-              noise: bool, n_objects: int) -> dict:
-    """Metrics dict from per-query rows (class, pred, R_true, R_pred, grid, truth, ms)."""
+              noise: bool, n_objects: int, noise_scale: int = 1) -> dict:
+    """Metrics dict from per-query rows (class, pred, R_true, R_pred, grid, truth, ms); ``noise_scale`` only
+    where it is not 1."""
     cls = np.array([r["class"] for r in rows])
     correct = np.array([r["class"] == r["pred"] for r in rows])
     Rt, Rp = np.stack([r["R_true"] for r in rows]), np.stack([r["R_pred"] for r in rows])
@@ -361,7 +367,8 @@ def summarize(rows: list[dict], classes, dataset: str, split: str, views: int, s
     for r in rows:
         conf[index[r["class"]], index[r["pred"]]] += 1
     return {"hbeo_version": __version__, "dataset": dataset, "split": split, "views": views, "seed": seed,
-            "sampler": sampler, "noise": bool(noise), "n_objects": n_objects, "n_queries": len(rows),
+            "sampler": sampler, "noise": bool(noise), **({"noise_scale": int(noise_scale)} if noise_scale != 1 else {}),
+            "n_objects": n_objects, "n_queries": len(rows),
             "accuracy": float(correct.mean()), "class_mean_accuracy": class_mean_accuracy(cls, [r["pred"] for r in rows]),
             "pose_error_deg": {"mean": float(raw.mean()), "median": float(np.median(raw)),
                                "mean_sym": float(sym.mean()), "median_sym": float(np.median(sym)),

@@ -243,7 +243,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
                   noise: bool = False, per_class: int | None = None, method: str = "hbeo", pose: str | None = None,
                   precision: str = "float32", rolls: int = 1, verify=None, max_steps: int | None = None,
                   progress: bool = True, prior_tau: float = 0.0, members=(), mirror: bool = False,
-                  completion: str | None = None, batched: bool = False) -> dict:
+                  completion: str | None = None, batched: bool = False, noise_scale: int = 1) -> dict:
     """``python -m hbeo evaluate``: the metrics of ``method`` (HBEO, or a baseline fitted/trained beside the
     model file when missing) on ``dataset``'s ``split`` (read with the model's profile), written to ``out``
     (JSON); ``split="val"`` also adds a row to the model folder's ``validation.csv``; objects that could not
@@ -255,6 +255,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     answer averaged with the mirrored image's (:meth:`hbeo.model.inference.HBEO.set_mirror`). ``completion``: HBEO's
     completion rule (:meth:`hbeo.model.inference.HBEO.set_completion`; None: its default, never empty). ``batched``:
     HBEO's one pass answers each chunk of views in one network call (the same answers; not with ``verify``).
+    ``noise_scale``: with ``noise``, where the noise is applied (:attr:`hbeo.render.views.RenderSettings.noise_scale`).
     Returns the metrics."""
     from hbeo.limits import check_rolls
     from hbeo.storage import atomic_file, check_outputs
@@ -268,6 +269,12 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     if completion is not None and method != "hbeo":
         raise ValueError(f"--completion is HBEO's completion rule; method {method!r} is not HBEO")
     check_rolls(rolls)                                  # before the model is read (and before torch is imported)
+    from hbeo.render.views import MAX_NOISE_SCALE
+    if noise_scale != 1 and not noise:
+        raise ValueError(f"--noise-scale {noise_scale} says where the sensor noise is applied: it needs --noise")
+    if not 1 <= noise_scale <= MAX_NOISE_SCALE:
+        raise ValueError(f"--noise-scale {noise_scale}: at most {MAX_NOISE_SCALE} (a query costs its square in "
+                         f"rendering time and memory)")
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.model.inference import HBEO
@@ -283,7 +290,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     meth = None if method == "hbeo" else load_method(method, folder, profile, progress=progress, max_steps=max_steps)
     metrics = evaluate_model(model, ds, split=split, views=views, seed=seed, sampler=sampler, noise=noise,
                              per_class=per_class, progress=progress, method=meth, pose=pose, rolls=rolls, verify=verify,
-                             batched=batched)
+                             batched=batched, noise_scale=noise_scale)
     metrics["model"] = str(model_path)
     with atomic_file(out, "w") as f:
         f.write(json_text(metrics, indent=2))
@@ -334,7 +341,8 @@ def record_validation(run, model_path, model, metrics: dict) -> dict:
            "ensemble": ";".join(str(f["file"]) for f in metrics.get("ensemble") or []),
            "rolls": metrics.get("rolls"), "mirror": metrics.get("mirror"), "prior_tau": metrics.get("prior_tau"), "verify": json.dumps(metrics.get("verify"), sort_keys=True),
            "views": metrics["views"], "seed": metrics["seed"], "sampler": metrics.get("sampler"),
-           "noise": metrics.get("noise"), "n_objects": metrics["n_objects"],
+           "noise": metrics.get("noise"), "noise_scale": metrics.get("noise_scale", 1 if metrics.get("noise") else None),
+           "n_objects": metrics["n_objects"],
            "n_queries": metrics["n_queries"], "accuracy": metrics["accuracy"],
            "class_mean_accuracy": metrics.get("class_mean_accuracy"), "val_split": _val_split(model),
            "pose_median_deg": pe["median"],

@@ -376,6 +376,9 @@ class FreshPoses(TorchDataset):
         s = b.settings
         if not self.renders_batches:
             raise ValueError(f"render_batch needs render backend 'torch', not {s.backend!r}")
+        if s.noise and s.noise_scale != 1:
+            raise ValueError(f"render_batch applies sensor noise at the image's size; noise_scale "
+                             f"{s.noise_scale} is for views rendered one object at a time (ObjectViews)")
         idx = [int(i) for i in indices]
         if bad := [i for i in idx if not 0 <= i < len(self)]:
             raise IndexError(f"image {bad[0]} out of range for {len(self)} views per epoch")

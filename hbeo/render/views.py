@@ -65,7 +65,12 @@ class RenderSettings:
     optical axis, as a fraction of its depth. elevation_deg: camera elevation range of the
     upright sampler. backend: ``"auto"``, ``"pyrender"``, ``"embree"`` (meshes) or ``"torch"`` (the
     surface of each object's grid, ray-marched in torch: :mod:`hbeo.render.gridcast`). noise: apply
-    :class:`hbeo.render.noise.SensorNoise`. seed: the set's seed (a non-negative integer).
+    :class:`hbeo.render.noise.SensorNoise`. noise_scale: with noise, sensor pixels per image pixel along each
+    axis: each view is rendered at ``noise_scale`` times the image's size (the camera scaled with it), the noise
+    applied there and the image read at the sensor pixel nearest each image pixel's centre (index
+    ``noise_scale * u + noise_scale // 2``), as ``predict`` reads a finer frame; 8 at 80x60 is a 640x480
+    sensor. 1 (the default) applies the noise at the image's own size, where its pixel-sized parts are
+    coarser relative to the object. seed: the set's seed (a non-negative integer).
     """
 
     image_size: tuple[int, int] = (80, 60)
@@ -78,6 +83,7 @@ class RenderSettings:
     backend: str = "auto"
     noise: bool = False
     seed: int = 0
+    noise_scale: int = 1
 
     def __post_init__(self):
         def pair(name, conv):
@@ -117,6 +123,13 @@ class RenderSettings:
         if not isinstance(self.noise, (bool, np.bool_)):
             raise ValueError(f"RenderSettings.noise must be True or False, got {self.noise!r}")
         object.__setattr__(self, "noise", bool(self.noise))
+        object.__setattr__(self, "noise_scale", _as_int(self.noise_scale, "RenderSettings.noise_scale"))
+        if not 1 <= self.noise_scale <= MAX_NOISE_SCALE:
+            raise ValueError(f"RenderSettings.noise_scale must be a whole number in 1..{MAX_NOISE_SCALE}, got "
+                             f"{self.noise_scale}")
+        if self.noise_scale != 1 and not self.noise:
+            raise ValueError(f"RenderSettings.noise_scale {self.noise_scale} needs noise: it says where the noise "
+                             f"is applied")
         object.__setattr__(self, "seed", _as_int(self.seed, "RenderSettings.seed"))
         if self.seed < 0:
             raise ValueError(f"RenderSettings.seed must be a non-negative integer, got {self.seed}")
@@ -125,6 +138,13 @@ class RenderSettings:
     @property
     def intrinsics(self) -> C.Intrinsics:
         return C.Intrinsics.kinect(*self.image_size)
+
+    @property
+    def sensor_intrinsics(self) -> C.Intrinsics:
+        """The camera the views are rendered with: :attr:`intrinsics`, or with noise at ``noise_scale`` > 1
+        the same camera at ``noise_scale`` times the size (the same field of view and principal ray)."""
+        k = self.noise_scale if self.noise else 1
+        return C.Intrinsics.kinect(self.image_size[0] * k, self.image_size[1] * k)
 
     @property
     def view_sampler(self) -> ViewSampler:
@@ -144,7 +164,11 @@ class RenderSettings:
         return cls(**kw)
 
     def to_dict(self) -> dict:
+        """The fields, JSON-ready; ``noise_scale`` only where it is not 1, so sets, checkpoints and model files
+        made before it existed keep the settings they had."""
         d = asdict(self)
+        if d["noise_scale"] == 1:
+            del d["noise_scale"]
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
     @classmethod
@@ -155,6 +179,10 @@ class RenderSettings:
         if strict and (unknown := sorted(set(d) - names, key=str)):
             raise ValueError(f"unknown keys {', '.join(map(str, unknown))} (known: {', '.join(f.name for f in fields(cls))})")
         return cls(**{k: v for k, v in d.items() if k in names})
+
+
+#: The largest :attr:`RenderSettings.noise_scale` (a view costs its square in rendering time and memory).
+MAX_NOISE_SCALE = 16
 
 
 def _as_float(v, name="value") -> float:
@@ -232,6 +260,7 @@ class ObjectViews:
         self.settings = settings
         self.subspace = subspace
         self.intrinsics = settings.intrinsics
+        self.sensor = settings.sensor_intrinsics            # the camera rendered with (noise_scale)
         self.noise = SensorNoise() if settings.noise else None
         self.renderer = None
         self._caster = None                     # backend "torch": (object key, GridCaster) of the last object
@@ -244,7 +273,7 @@ class ObjectViews:
 
     def open(self):
         if self.renderer is None and self.settings.backend != "torch":
-            self.renderer = self.render.Renderer(self.intrinsics, backend=self.settings.backend)
+            self.renderer = self.render.Renderer(self.sensor, backend=self.settings.backend)
         return self
 
     def close(self):
@@ -321,11 +350,11 @@ class ObjectViews:
             from hbeo.render.gridcast import GridCaster
             try:
                 check_grid_records(records)
-                caster = GridCaster([r.grid() for r in records], self.intrinsics, self.settings.object_size,
+                caster = GridCaster([r.grid() for r in records], self.sensor, self.settings.object_size,
                                     device="cuda" if torch.cuda.is_available() else "cpu")
                 idx = np.concatenate([np.full(len(R), k, np.int64) for k, (R, _) in enumerate(poses)])
                 R, t = np.concatenate([R for R, _ in poses]), np.concatenate([t for _, t in poses])
-                M = max(1, self.MANY_RAYS // (self.intrinsics.width * self.intrinsics.height))
+                M = max(1, self.MANY_RAYS // (self.sensor.width * self.sensor.height))
                 depth = np.concatenate([caster.render(idx[i:i + M], R[i:i + M], t[i:i + M]).cpu().numpy()
                                         for i in range(0, len(idx), M)])
             except Exception:
@@ -371,7 +400,7 @@ class ObjectViews:
         key = (record.split, record.cls, record.id)
         if self._caster is None or self._caster[0] != key:
             device = "cuda" if torch.cuda.is_available() else "cpu"
-            self._caster = (key, GridCaster([record.grid()], self.intrinsics, self.settings.object_size,
+            self._caster = (key, GridCaster([record.grid()], self.sensor, self.settings.object_size,
                                             device=device))
         return self._caster[1].render(np.zeros(len(R), np.int64), R, t).cpu().numpy()
 
@@ -381,15 +410,17 @@ class ObjectViews:
         (if the settings ask for it) from ``rngs`` (one per view, or one stream for all), float16 depth."""
         s = self.settings
         depth = np.asarray(depth, np.float32)
-        n, (w, h) = len(R), s.image_size
+        n, (w, h) = len(R), (self.sensor.width, self.sensor.height)
         if depth.shape != (n, h, w):
             raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(n, h, w)}")
         if self.noise is not None:
             if all(g is rngs[0] for g in rngs):       # one stream for all views (a rendered set)
-                depth = np.asarray(self.noise.apply(depth, self.intrinsics, rngs[0]), np.float32)
+                depth = np.asarray(self.noise.apply(depth, self.sensor, rngs[0]), np.float32)
             else:                                     # each query view's own stream
-                depth = np.concatenate([np.asarray(self.noise.apply(depth[k:k + 1], self.intrinsics, g), np.float32)
+                depth = np.concatenate([np.asarray(self.noise.apply(depth[k:k + 1], self.sensor, g), np.float32)
                                         for k, g in enumerate(rngs)])
+        if (k := self.sensor.width // s.image_size[0]) > 1:    # the sensor pixel nearest each pixel's centre
+            depth = np.ascontiguousarray(depth[:, k // 2::k, k // 2::k])
         depth = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16)
         depth[~(depth > 0)] = 0                      # 0 = no object, never negative
         out = {

@@ -62,7 +62,7 @@ ROLE_ORDER = (ONE_PASS, EXTENDED, REFERENCE)
 N_BOOT = 1000
 #: What must agree between a row's metrics file and a file of another training seed (or the reference row's)
 #: for the two to score the same queries: top-level keys, and the keys of ``request`` where both carry one.
-PAIRED = ("dataset", "split", "views", "seed", "sampler", "noise", "n_objects", "n_queries")
+PAIRED = ("dataset", "split", "views", "seed", "sampler", "noise", "noise_scale", "n_objects", "n_queries")
 PAIRED_REQUEST = ("dataset", "dataset_fingerprint", "per_class", "views", "seed", "sampler")
 
 

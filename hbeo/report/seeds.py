@@ -54,7 +54,7 @@ MEASURES = {
 }
 #: What must agree between two runs' evaluations of one setting for them to score the same test images:
 #: the metrics dict's own fields, and those of its cache key (``request``, :func:`hbeo.evaluation.protocol.request`).
-PAIRING = ("dataset", "split", "views", "seed", "sampler", "noise")
+PAIRING = ("dataset", "split", "views", "seed", "sampler", "noise", "noise_scale")
 REQUEST_PAIRING = {"per_class": "objects per class", "dataset_fingerprint": "dataset fingerprint"}
 
 
