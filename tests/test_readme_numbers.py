@@ -43,7 +43,8 @@ def _settings() -> dict[str, str]:
 TRACED = {"53 %": "benchmarks/README.md", "89 %": "benchmarks/README.md", "0.98": "benchmarks/README.md",
           "0.83": "benchmarks/README.md", "34.2 %": "docs/history/gpu-lease-modelnet10-vox30/lease-2026-11-26/README.md",
           **dict.fromkeys(("88°", "11°", "82°", "14°", "74.8 %", "76.0 %", "0.15", "0.30"), "docs/history/recenter-at-inference-2026-12-06/README.md"),
-          **dict.fromkeys(("80.7 %", "80.5 %"), "docs/history/quick-procedural-avx2-bbb78f2/README.md")}
+          **dict.fromkeys(("80.7 %", "80.5 %"), "docs/history/quick-procedural-avx2-bbb78f2/README.md"),
+          "65.0 %": "results/cpu-modelnet10-vox30/model_table.md"}
 FIGURE = re.compile(r"(?<![\w.])(\d+(?:[.,]\d+)?\s?(?:%|°)|0\.\d{2,})")
 
 
