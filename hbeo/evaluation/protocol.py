@@ -329,8 +329,9 @@ def _val_split(model) -> str:
 def record_validation(run, model_path, model, metrics: dict) -> dict:
     """Add one row to the run's ``validation.csv`` (:attr:`RunDir.validation_log`): when, which model
     file (name, sha256, rotation head, roll augmentation), how it was evaluated (views, seed, sampler, sensor
-    noise, rolls, ...) and its validation scores; the file is rewritten atomically. Every configuration tried is meant to leave its row,
-    so a choice made on validation can be checked against all the others. Returns the row."""
+    noise and its scale, rolls, ...) and its validation scores; the file is rewritten atomically. Every
+    configuration tried is meant to leave its row, so a choice made on validation can be checked against all
+    the others. Returns the row."""
     import datetime
     run = RunDir.of(run)
     pe = metrics["pose_error_deg"]
