@@ -74,7 +74,7 @@ def query_poses(render: dict, records, split: str, views: int, seed: int) -> lis
     """(R (views, 3, 3), t (views, 3)) of each record's query views under render settings ``render`` (the model's),
     drawn as the evaluation draws them, without rendering."""
     from hbeo.render.views import RenderSettings, query_rng
-    rs = RenderSettings.from_dict({**render, "views_per_object": views, "seed": seed, "noise": False})
+    rs = RenderSettings.for_queries(render, views, seed)
     return [rs.view_sampler.sample_each([query_rng(rs.seed, split, r, j) for j in range(views)]) for r in records]
 
 

@@ -205,9 +205,7 @@ def score_methods(methods: dict, dataset, setup: EvaluationSetup, split: str = "
                             f"(name, poses, predict_view, describe; hbeo.evaluation.method)")
         if pose not in m.poses:
             raise ValueError(f"method {m.name!r} does not take pose {pose!r}; it takes {', '.join(m.poses)}")
-    over = {"views_per_object": views, "seed": seed, "noise": bool(noise), "noise_scale": int(noise_scale),
-            **({"sampler": sampler} if sampler else {})}
-    rs = RenderSettings.from_dict({**setup.render, **over})
+    rs = RenderSettings.for_queries(setup.render, views, seed, sampler, noise, noise_scale)
     K, classes, means = setup.intrinsics, tuple(setup.classes), setup.class_means
     records = split_records(dataset, split, per_class, setup.profile)
     if not records:

@@ -218,8 +218,7 @@ def sample_completions(run, n: int = 6, seed: int = SEED) -> list[dict]:
     for i, r in enumerate(records):
         first.setdefault(r.cls, (i, r))
     picks = list(first.values())[:n]
-    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": 1, "seed": seed,
-                                   "noise": False})   # the queries are clean, as evaluate's
+    rs = RenderSettings.for_queries(model.settings.render, 1, seed)
     viewer, views = ObjectViews(rs), []
     try:
         for i, r in picks:

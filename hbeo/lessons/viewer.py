@@ -247,8 +247,7 @@ def object_view(run, cls: str | None = None, index: int = 0, view: int = 0) -> V
         raise ValueError(f"index must be in 0..{len(records) - 1} for the {len(records)} test objects of {cls!r}, "
                          f"got {index}")
     rec = records[index]
-    rs = RenderSettings.from_dict({**model.settings.render, "views_per_object": 1, "seed": SEED,
-                                   "noise": False})   # the queries are clean, as evaluate's
+    rs = RenderSettings.for_queries(model.settings.render, 1, SEED)
     views = ObjectViews(rs)
     try:
         v = views.query_views(rec, "test", view + 1)

@@ -141,10 +141,9 @@ class RenderSettings:
 
     @property
     def sensor_intrinsics(self) -> C.Intrinsics:
-        """The camera the views are rendered with: :attr:`intrinsics`, or with noise at ``noise_scale`` > 1
-        the same camera at ``noise_scale`` times the size (the same field of view and principal ray)."""
-        k = self.noise_scale if self.noise else 1
-        return C.Intrinsics.kinect(self.image_size[0] * k, self.image_size[1] * k)
+        """The camera the views are rendered with: :attr:`intrinsics` at ``noise_scale`` times the size (the same
+        field of view and principal ray; ``noise_scale`` is 1 without noise)."""
+        return C.Intrinsics.kinect(self.image_size[0] * self.noise_scale, self.image_size[1] * self.noise_scale)
 
     @property
     def view_sampler(self) -> ViewSampler:
@@ -170,6 +169,16 @@ class RenderSettings:
         if d["noise_scale"] == 1:
             del d["noise_scale"]
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+    @classmethod
+    def for_queries(cls, training: dict, views: int, seed: int, sampler: str | None = None, noise: bool = False,
+                    noise_scale: int = 1) -> "RenderSettings":
+        """The settings of query views for a model trained on images rendered with ``training`` (a
+        :meth:`to_dict` dict, the model file's ``settings.render``): its camera, object size and distances, with
+        the queries' own ``views`` per object, ``seed``, ``sampler`` (None: the training one) and sensor noise
+        (clean unless asked, whatever the training images carried)."""
+        return cls.from_dict({**training, "views_per_object": views, "seed": seed, "noise": bool(noise),
+                              "noise_scale": int(noise_scale), **({"sampler": sampler} if sampler else {})})
 
     @classmethod
     def from_dict(cls, d: dict, strict: bool = False) -> "RenderSettings":
@@ -419,7 +428,7 @@ class ObjectViews:
             else:                                     # each query view's own stream
                 depth = np.concatenate([np.asarray(self.noise.apply(depth[k:k + 1], self.sensor, g), np.float32)
                                         for k, g in enumerate(rngs)])
-        if (k := self.sensor.width // s.image_size[0]) > 1:    # the sensor pixel nearest each pixel's centre
+        if (k := s.noise_scale) > 1:                  # the sensor pixel nearest each pixel's centre
             depth = np.ascontiguousarray(depth[:, k // 2::k, k // 2::k])
         depth = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16)
         depth[~(depth > 0)] = 0                      # 0 = no object, never negative
