@@ -44,17 +44,32 @@ class SensorNoise:
             raise ValueError(f"depth image is {d.shape}, intrinsics are for {K.height}x{K.width} (rows x cols)")
         if not np.isfinite(d).all() or (d < 0).any():
             raise ValueError("depth must be finite and >= 0 (0 = no object)")
-        from scipy import ndimage
-        d = d.copy()
         mask = d > 0
         if not mask.any():
-            return d
+            return d.copy()
+        rows, cols = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+        pad = max(int(self.seg_px), 0) + 2      # the silhouette's ring, erosion and dilation stay inside
+        box = (max(rows[0] - pad, 0), min(rows[-1] + pad + 1, d.shape[0]),
+               max(cols[0] - pad, 0), min(cols[-1] + pad + 1, d.shape[1]))
+        return self._apply_box(d, K, rng, box)
+
+    def _apply_box(self, d: np.ndarray, K: C.Intrinsics, rng: np.random.Generator, box) -> np.ndarray:
+        """:meth:`apply` computed inside ``box`` (row start, row stop, column start, column stop), which holds
+        every object pixel with a margin of ``seg_px + 2``: every pixel outside it stays 0, and the random draws
+        (the edge draw over the whole frame, the normals in row-major order) are those of the whole frame, so
+        the answer is the whole frame's, bit for bit, at the cost of the box (a 640x480 frame's object covers
+        a fraction of it)."""
+        from scipy import ndimage
+        r0, r1, c0, c1 = (int(b) for b in box)
+        full = d
+        d = full[r0:r1, c0:c1].copy()
+        mask = d > 0
         keep = mask.copy()
         if self.grazing_deg is not None and self.grazing_deg < 90:
-            keep &= _grazing_cos(d, K) >= np.cos(np.radians(self.grazing_deg))
+            keep &= _grazing_cos(d, K, (r0, c0)) >= np.cos(np.radians(self.grazing_deg))
         if self.edge_p > 0:
             border = mask & ~ndimage.binary_erosion(mask, structure=np.ones((3, 3), bool), border_value=0)
-            keep &= ~(border & (rng.random(d.shape) < self.edge_p))
+            keep &= ~(border & (rng.random(full.shape)[r0:r1, c0:c1] < self.edge_p))
         if self.seg_px > 0:
             k = int(rng.integers(0, self.seg_px + 1))
             if k > 0 and rng.random() < 0.5:           # erode the segmentation
@@ -73,45 +88,48 @@ class SensorNoise:
                 q = np.round(1.0 / (np.maximum(z, 1e-6) * self.disparity_step))
                 z = np.where(q > 0, 1.0 / (np.maximum(q, 1) * self.disparity_step), 0.0)
         z[~np.isfinite(z) | (z <= 0)] = 0.0
-        out = np.zeros_like(d)
-        out[keep] = z.astype(np.float32)
+        out = np.zeros_like(full)
+        out[r0:r1, c0:c1][keep] = z.astype(np.float32)
         return out
 
 
-def _grazing_cos(depth: np.ndarray, K: C.Intrinsics) -> np.ndarray:
+def _grazing_cos(depth: np.ndarray, K: C.Intrinsics, origin=(0, 0)) -> np.ndarray:
     """|cos| of the angle between the surface normal (from depth gradients) and the viewing ray,
-    per pixel (H, W); 1 where the normal cannot be estimated (isolated pixels)."""
+    per pixel (H, W); 1 where the normal cannot be estimated (isolated pixels). ``depth`` is the window of the
+    frame whose first pixel is (row, column) ``origin``; pixels beyond it must be 0 (no data). Each pixel's
+    tangents are central differences (one-sided at an edge of the data); x, y and z are kept as separate
+    (H, W) arrays, which is what makes it fast (a reduction over a last axis of 3 is slow in numpy), with the
+    arithmetic of the cross product, norms and dot product written in numpy's own order."""
     H, W = depth.shape
     z = depth.astype(np.float64)
     valid = z > 0
-    u = (np.arange(W) - K.cx) / K.fx
-    v = (np.arange(H) - K.cy) / K.fy
-    P = np.empty((H, W, 3))
-    P[..., 0], P[..., 1], P[..., 2] = z * u[None, :], z * v[:, None], z
+    u = (np.arange(origin[1], origin[1] + W) - K.cx) / K.fx
+    v = (np.arange(origin[0], origin[0] + H) - K.cy) / K.fy
+    P = (z * u[None, :], z * v[:, None], z)
 
     def tangent(axis):
-        fwd = np.zeros_like(P)
+        sa = (slice(None), slice(0, -1)) if axis == 1 else (slice(0, -1), slice(None))
+        sb = (slice(None), slice(1, None)) if axis == 1 else (slice(1, None), slice(None))
         ok_f = np.zeros((H, W), bool)
-        sl_a = [slice(None)] * 2
-        sl_b = [slice(None)] * 2
-        sl_a[axis], sl_b[axis] = slice(0, -1), slice(1, None)
-        sa, sb = tuple(sl_a), tuple(sl_b)
-        fwd[sa] = P[sb] - P[sa]
         ok_f[sa] = valid[sb] & valid[sa]
-        bwd = np.zeros_like(P)
         ok_b = np.zeros((H, W), bool)
-        bwd[sb] = fwd[sa]
         ok_b[sb] = ok_f[sa]
         both = ok_f & ok_b
-        tan = np.where(both[..., None], (fwd + bwd) / 2, np.where(ok_f[..., None], fwd, bwd))
+        tan = []
+        for p in P:
+            fwd = np.zeros((H, W))
+            fwd[sa] = p[sb] - p[sa]
+            bwd = np.zeros((H, W))
+            bwd[sb] = fwd[sa]
+            tan.append(np.where(both, (fwd + bwd) / 2, np.where(ok_f, fwd, bwd)))
         return tan, ok_f | ok_b
 
-    tu, ok_u = tangent(1)
-    tv, ok_v = tangent(0)
-    n = np.cross(tu, tv)
-    nn = np.linalg.norm(n, axis=-1)
-    pn = np.linalg.norm(P, axis=-1)
+    (a0, a1, a2), ok_u = tangent(1)
+    (b0, b1, b2), ok_v = tangent(0)
+    n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    pn = np.sqrt(P[0] * P[0] + P[1] * P[1] + P[2] * P[2])
     with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.abs((n * P).sum(-1)) / (nn * pn)
+        c = np.abs(n0 * P[0] + n1 * P[1] + n2 * P[2]) / (nn * pn)
     ok = valid & ok_u & ok_v & (nn > 0)
     return np.where(ok, c, 1.0)
