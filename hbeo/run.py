@@ -31,7 +31,7 @@ from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.limits import check_in_memory, check_workers
 from hbeo.progress import PAPERMILL_HEADER, kernel_history
-from hbeo.render.views import RenderSettings, check_grid_records
+from hbeo.render.views import RenderSettings, check_grid_records, check_noise_scale
 from hbeo.rundir import BASELINE_FILES, RunDir, failure_summary
 from hbeo.storage import atomic_text, json_text
 from hbeo.subspace.basis import ObjectSubspace
@@ -349,8 +349,15 @@ class Run:
         opts = options or TrainOptions()
         seed = self.training_seed if opts.seed is None else opts.seed
         prof = self.profile
+        check_noise_scale(opts.noise, opts.noise_scale, "a training view")
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
-                                               backend=opts.backend, image_size=opts.image_size, noise=opts.noise)
+                                               backend=opts.backend, image_size=opts.image_size, noise=opts.noise,
+                                               noise_scale=opts.noise_scale)
+        streamed = (opts.data or prof.data.train_data) == "stream"
+        if settings.noise_scale != 1 and streamed and settings.backend == "torch":
+            raise ValueError(f"--noise-scale {settings.noise_scale}: the streamed torch renderer draws a batch at "
+                             f"the image's size; render the views one object at a time with --data memory, or "
+                             f"--backend embree")
         if settings.backend == "torch":                   # grids only: refuse a mesh dataset before any work
             if opts.backend != "torch" and not all(r.has_grid for r in self.records("train")):
                 print(f"[hbeo] profile {prof.name} renders with torch, which needs grids; {self.dataset.name} has "

@@ -48,3 +48,44 @@ def test_streamed_training_with_noise_keeps_it_in_the_checkpoint(ci_subspace, ci
     data = load_checkpoint(run.training(run.model) / "checkpoint.pt")["settings"]["train"]["data"]
     assert data["noise"] is True and data["source"] == "stream"
     assert HBEO.load(run.model).settings.render["noise"] is True and not run.renders("train").exists()
+
+
+@pytest.mark.slow
+def test_train_noise_at_a_finer_sensor_renders_it_there_and_records_it(ci_render, ci_run, copy_run, tmp_path,
+                                                                       capsys):
+    """--noise-scale S: each training view rendered at S times the size, the noise applied there, read every S-th
+    pixel; the set, the checkpoint, the provenance and the model file say S, and the option is checked first."""
+    from hbeo import cli
+    from hbeo.model.inference import HBEO
+    from hbeo.model.loop import load_checkpoint
+    from hbeo.render.torch_datasets import DepthShards
+    from hbeo.render.views import ObjectViews
+    from hbeo.run import Run
+    run = copy_run(ci_run, tmp_path / "run", names=["grids_train.npz", "grids_test.npz", "subspace.npz"])
+    args = ["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
+            "--max-steps", "2", "--quiet"]
+    for bad, says in ((["--noise-scale", "2"], "needs --noise"), (["--noise", "--noise-scale", "17"], "at most 16"),
+                      (["--noise", "--noise-scale", "2", "--data", "stream", "--backend", "torch"], "--data memory")):
+        capsys.readouterr()
+        assert cli.main([*args, *bad]) == 2
+        assert says in capsys.readouterr().err and not run.renders("train").exists()
+    assert cli.main([*args, "--noise", "--noise-scale", "2"]) == 0
+    fine, clean = DepthShards(run.renders("train")), DepthShards(ci_run.renders("train"))
+    s = fine.manifest.settings
+    assert s.noise and s.noise_scale == 2 and s.image_size == clean.manifest.settings.image_size
+    a, b = fine[0]["depth"].numpy(), clean[0]["depth"].numpy()
+    assert a.shape == b.shape and not np.array_equal(a, b)
+    assert np.array_equal(fine[0]["rotation"].numpy(), clean[0]["rotation"].numpy())
+    # the first object's views are those ObjectViews renders at the sensor's size with these settings
+    opened = Run.open("ci", "procedural", run.path)
+    record = opened.records("train")[0]
+    assert fine.object_ids[0] == record.id
+    want = ObjectViews(s, opened.subspace(False)).views(record, 0, 0, "train")["depth"]
+    assert np.array_equal(a[0], np.asarray(want[0], a.dtype))
+    assert HBEO.load(run.model).settings.render["noise_scale"] == 2
+    data = load_checkpoint(run.training(run.model) / "checkpoint.pt")["settings"]["train"]["data"]
+    assert data["noise"] is True and data["noise_scale"] == 2
+    assert json.loads((run.training(run.model) / "provenance.json").read_text())["options"]["noise_scale"] == 2
+    capsys.readouterr()
+    assert cli.main([*args, "--noise", "--name", "coarse.hbeo"]) == 2      # the set's noise is at scale 2: refused
+    assert "different settings" in capsys.readouterr().err

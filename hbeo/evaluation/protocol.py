@@ -268,12 +268,8 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     if completion is not None and method != "hbeo":
         raise ValueError(f"--completion is HBEO's completion rule; method {method!r} is not HBEO")
     check_rolls(rolls)                                  # before the model is read (and before torch is imported)
-    from hbeo.render.views import MAX_NOISE_SCALE
-    if noise_scale != 1 and not noise:
-        raise ValueError(f"--noise-scale {noise_scale} says where the sensor noise is applied: it needs --noise")
-    if not 1 <= noise_scale <= MAX_NOISE_SCALE:
-        raise ValueError(f"--noise-scale {noise_scale}: at most {MAX_NOISE_SCALE} (a query costs its square in "
-                         f"rendering time and memory)")
+    from hbeo.render.views import check_noise_scale
+    check_noise_scale(noise, noise_scale, "a query")
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model
     from hbeo.model.inference import HBEO

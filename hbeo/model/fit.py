@@ -145,7 +145,11 @@ class TrainOptions:
     batch_size / lr: the optimizer's batch and peak learning rate (None: the profile's); warmup_steps: the linear
     warm-up's steps (None: 100, or one epoch when shorter); noise: train on views with the Kinect-like sensor
     noise (:class:`hbeo.render.noise.SensorNoise`, each view its own draw; render settings: a run folder holds
-    one rendered set, so a clean set already there is refused, not mixed)."""
+    one rendered set, so a clean set already there is refused, not mixed); noise_scale: with noise, where it is
+    applied (:attr:`hbeo.render.views.RenderSettings.noise_scale`: each view rendered at that many times the
+    image's size, the noise applied there, the image read at the pixel nearest each pixel's centre, as
+    ``predict`` reads a sensor's frame; 8 at 80x60 is a 640x480 sensor; views rendered one object at a time,
+    so not the streamed ``torch`` renderer)."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -174,6 +178,7 @@ class TrainOptions:
     lr: float | None = None
     warmup_steps: int | None = None
     noise: bool = False
+    noise_scale: int = 1
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
@@ -271,6 +276,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["augment_mirror"] = True
     if data.settings.noise:           # clean runs keep the settings (and checkpoints) they had
         how["noise"] = True
+        if data.settings.noise_scale != 1:
+            how["noise_scale"] = data.settings.noise_scale
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
         how["backend"] = "torch"
         if augment_roll:                    # rolls drawn by reading position (render_batch's roll_keys)

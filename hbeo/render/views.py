@@ -194,6 +194,16 @@ class RenderSettings:
 MAX_NOISE_SCALE = 16
 
 
+def check_noise_scale(noise: bool, noise_scale: int, what: str = "a view") -> None:
+    """Refuse a ``--noise-scale`` that :class:`RenderSettings` would refuse, naming the command's options (for
+    ``train`` and ``evaluate``, before any data or model is read)."""
+    if noise_scale != 1 and not noise:
+        raise ValueError(f"--noise-scale {noise_scale} says where the sensor noise is applied: it needs --noise")
+    if not 1 <= noise_scale <= MAX_NOISE_SCALE:
+        raise ValueError(f"--noise-scale {noise_scale}: at most {MAX_NOISE_SCALE} ({what} costs its square in "
+                         f"rendering time and memory)")
+
+
 def _as_float(v, name="value") -> float:
     """A number (not a string, a bool or None) as a float; ValueError naming ``name`` otherwise."""
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer, float, np.floating)):
