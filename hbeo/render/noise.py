@@ -56,9 +56,9 @@ class SensorNoise:
     def _apply_box(self, d: np.ndarray, K: C.Intrinsics, rng: np.random.Generator, box) -> np.ndarray:
         """:meth:`apply` computed inside ``box`` (row start, row stop, column start, column stop), which holds
         every object pixel with a margin of ``seg_px + 2``: every pixel outside it stays 0, and the random draws
-        (the edge draw over the whole frame, the normals in row-major order) are those of the whole frame, so
-        the answer is the whole frame's, bit for bit, at the cost of the box (a 640x480 frame's object covers
-        a fraction of it)."""
+        (the edge draw over the whole frame, the depth noise over the kept pixels in row-major order) are those
+        of the whole frame, so the answer is the whole frame's, bit for bit, at the cost of the box (a 640x480
+        frame's object covers a fraction of it)."""
         from scipy import ndimage
         r0, r1, c0, c1 = (int(b) for b in box)
         full = d
