@@ -353,8 +353,8 @@ class Run:
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
                                                backend=opts.backend, image_size=opts.image_size, noise=opts.noise,
                                                noise_scale=opts.noise_scale)
-        streamed = (opts.data or prof.data.train_data) == "stream"
-        if settings.noise_scale != 1 and streamed and settings.backend == "torch":
+        source = opts.data or prof.data.train_data
+        if settings.noise_scale != 1 and source == "stream" and settings.backend == "torch":
             raise ValueError(f"--noise-scale {settings.noise_scale}: the streamed torch renderer draws a batch at "
                              f"the image's size; render the views one object at a time with --data memory, or "
                              f"--backend embree")
@@ -369,12 +369,12 @@ class Run:
             check_workers(opts.loader_workers, "--loader-workers")
         n = len(self.records("train"))                    # refused before anything is rendered
         check_in_memory(n * settings.views_per_object, settings.image_size, per=n,
-                        source=opts.data or prof.data.train_data, value=settings.views_per_object)
+                        source=source, value=settings.views_per_object)
         # the network's size too (one coefficient: the subspace may not exist yet; fit_model checks it exactly)
         check_network(opts.net_config(prof, settings.image_size, len(self.dataset.classes), 1))
         main = distributed.world().main
         if main:                                          # rank 0 prepares the shared files, the others wait
-            if (opts.data or prof.data.train_data) == "stream":
+            if source == "stream":
                 self.subspace(progress)
             else:
                 self.renders("train", settings, progress)
