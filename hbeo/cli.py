@@ -100,7 +100,7 @@ def cmd_train(args) -> int:
     same = ("epochs", "rotation", "augment_roll", "shape_loss", "data", "sampler", "views", "backend", "seed",
             "name", "max_steps", "checkpoint_every", "loader_workers", "class_balance", "render_ahead",
             "draw_workers", "augment_mirror", "image_size", "batch_size", "lr", "warmup_steps",
-            "noise", "noise_scale")                                                       # TrainOptions' names
+            "noise", "noise_scale", "noise_fraction")                                     # TrainOptions' names
     opts = TrainOptions(normalization=args.normalize, view=ViewOptions(args.recenter, args.ref_distance),
                         loss=parse_loss_weights(args.loss_weights), fc=parse_fc(args.fc) if args.fc else None,
                         **{k: getattr(args, k) for k in same})
@@ -382,6 +382,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --noise: render each training view at S times the image size, apply the noise there "
                         "and read every S-th pixel, as predict reads a sensor's frame (8 at 80x60: a 640x480 "
                         "sensor; S*S times the rendering); 1 (default): the noise at the image's size")
+    p.add_argument("--noise-fraction", type=FRACTION, default=1.0, metavar="F",
+                   help="with --noise: only each object's first F * --views views carry the noise (a whole number), "
+                        "the rest are the clean set's views (not --data stream); 1 (default): every view")
     p.add_argument("--recenter", action="store_true", help="turn every view to look straight at the object")
     p.add_argument("--ref-distance", type=POSITIVE, help="distance-insensitive input: zoom to this object distance (m)")
     p.add_argument("--seed", type=NONNEG, help="training seed (default 0)")

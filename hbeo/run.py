@@ -31,7 +31,7 @@ from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.limits import check_in_memory, check_workers
 from hbeo.progress import PAPERMILL_HEADER, kernel_history
-from hbeo.render.views import RenderSettings, check_grid_records, check_noise_scale
+from hbeo.render.views import RenderSettings, check_grid_records, check_noise_fraction, check_noise_scale
 from hbeo.rundir import BASELINE_FILES, RunDir, failure_summary
 from hbeo.storage import atomic_text, json_text
 from hbeo.subspace.basis import ObjectSubspace
@@ -350,10 +350,14 @@ class Run:
         seed = self.training_seed if opts.seed is None else opts.seed
         prof = self.profile
         check_noise_scale(opts.noise, opts.noise_scale, "a training view")
+        check_noise_fraction(opts.noise, opts.noise_fraction, opts.views or prof.data.views_per_object)
+        source = opts.data or prof.data.train_data
+        if opts.noise_fraction != 1 and source == "stream":
+            raise ValueError(f"--noise-fraction {opts.noise_fraction:g}: --data stream draws one view per object a "
+                             f"pass, not an object's views together; use --data memory or shards")
         settings = RenderSettings.from_profile(prof, views_per_object=opts.views, sampler=opts.sampler,
                                                backend=opts.backend, image_size=opts.image_size, noise=opts.noise,
-                                               noise_scale=opts.noise_scale)
-        source = opts.data or prof.data.train_data
+                                               noise_scale=opts.noise_scale, noise_fraction=opts.noise_fraction)
         if settings.noise_scale != 1 and source == "stream" and settings.backend == "torch":
             raise ValueError(f"--noise-scale {settings.noise_scale}: the streamed torch renderer draws a batch at "
                              f"the image's size; render the views one object at a time with --data memory, or "

@@ -149,7 +149,9 @@ class TrainOptions:
     applied (:attr:`hbeo.render.views.RenderSettings.noise_scale`: each view rendered at that many times the
     image's size, the noise applied there, the image read at the pixel nearest each pixel's centre, as
     ``predict`` reads a sensor's frame; 8 at 80x60 is a 640x480 sensor; views rendered one object at a time,
-    so not the streamed ``torch`` renderer)."""
+    so not the streamed ``torch`` renderer); noise_fraction: with noise, the share of each object's views that
+    carry it (:attr:`hbeo.render.views.RenderSettings.noise_fraction`: its first views, the rest clean at the
+    image's size; a rendered set's views, so not ``data="stream"``, which draws one view per object a pass)."""
 
     epochs: int | None = None
     rotation: str | None = None
@@ -179,6 +181,7 @@ class TrainOptions:
     warmup_steps: int | None = None
     noise: bool = False
     noise_scale: int = 1
+    noise_fraction: float = 1.0
 
     def recipe(self, prof) -> dict:
         """The profile's recipe with this run's overrides: ``rotation``, ``augment_roll``, ``shape_loss``,
@@ -278,6 +281,8 @@ def fit_model(run, prof, options: TrainOptions | None = None, dataset=None, sett
         how["noise"] = True
         if data.settings.noise_scale != 1:
             how["noise_scale"] = data.settings.noise_scale
+        if data.settings.noise_fraction != 1:
+            how["noise_fraction"] = data.settings.noise_fraction
     if source == "stream" and data.settings.backend == "torch":    # other backends: the settings they had
         how["backend"] = "torch"
         if augment_roll:                    # rolls drawn by reading position (render_batch's roll_keys)

@@ -33,7 +33,7 @@ Imports the foundation, :mod:`hbeo.data.gridset` and :mod:`hbeo.render` (poses, 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields, is_dataclass
+from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 
 import numpy as np
 
@@ -70,7 +70,11 @@ class RenderSettings:
     applied there and the image read at the sensor pixel nearest each image pixel's centre (index
     ``noise_scale * u + noise_scale // 2``), as ``predict`` reads a finer frame; 8 at 80x60 is a 640x480
     sensor. 1 (the default) applies the noise at the image's own size, where its pixel-sized parts are
-    coarser relative to the object. seed: the set's seed (a non-negative integer).
+    coarser relative to the object. seed: the set's seed (a non-negative integer). noise_fraction: with noise,
+    the share of each object's views that carry it: views ``0 .. k-1`` (k = ``noise_fraction *
+    views_per_object``, a whole number from 1 to ``views_per_object``; the views' poses are independent draws,
+    so which views is no choice) are rendered as ``noise`` and ``noise_scale`` say, the rest clean at the
+    image's size, the images a clean set with the same seed holds for those views; 1 (the default): every view.
     """
 
     image_size: tuple[int, int] = (80, 60)
@@ -84,6 +88,7 @@ class RenderSettings:
     noise: bool = False
     seed: int = 0
     noise_scale: int = 1
+    noise_fraction: float = 1.0
 
     def __post_init__(self):
         def pair(name, conv):
@@ -130,6 +135,17 @@ class RenderSettings:
         if self.noise_scale != 1 and not self.noise:
             raise ValueError(f"RenderSettings.noise_scale {self.noise_scale} needs noise: it says where the noise "
                              f"is applied")
+        object.__setattr__(self, "noise_fraction", _as_float(self.noise_fraction, "RenderSettings.noise_fraction"))
+        if not 0 < self.noise_fraction <= 1:
+            raise ValueError(f"RenderSettings.noise_fraction must be in (0, 1], got {self.noise_fraction}")
+        if self.noise_fraction != 1:
+            if not self.noise:
+                raise ValueError(f"RenderSettings.noise_fraction {self.noise_fraction} needs noise: it says which "
+                                 f"views carry it")
+            k = self.noise_fraction * self.views_per_object
+            if abs(k - round(k)) > 1e-9 or round(k) < 1:
+                raise ValueError(f"RenderSettings.noise_fraction {self.noise_fraction} of {self.views_per_object} "
+                                 f"views per object is {k:g} views: it must be a whole number of at least 1")
         object.__setattr__(self, "seed", _as_int(self.seed, "RenderSettings.seed"))
         if self.seed < 0:
             raise ValueError(f"RenderSettings.seed must be a non-negative integer, got {self.seed}")
@@ -144,6 +160,12 @@ class RenderSettings:
         """The camera the views are rendered with: :attr:`intrinsics` at ``noise_scale`` times the size (the same
         field of view and principal ray; ``noise_scale`` is 1 without noise)."""
         return C.Intrinsics.kinect(self.image_size[0] * self.noise_scale, self.image_size[1] * self.noise_scale)
+
+    @property
+    def noisy_views(self) -> int:
+        """How many of an object's views carry the sensor noise (its first ones): ``noise_fraction *
+        views_per_object`` with noise, 0 without."""
+        return round(self.noise_fraction * self.views_per_object) if self.noise else 0
 
     @property
     def view_sampler(self) -> ViewSampler:
@@ -163,11 +185,12 @@ class RenderSettings:
         return cls(**kw)
 
     def to_dict(self) -> dict:
-        """The fields, JSON-ready; ``noise_scale`` only where it is not 1, so sets, checkpoints and model files
-        made before it existed keep the settings they had."""
+        """The fields, JSON-ready; ``noise_scale`` and ``noise_fraction`` only where they are not 1, so sets,
+        checkpoints and model files made before they existed keep the settings they had."""
         d = asdict(self)
-        if d["noise_scale"] == 1:
-            del d["noise_scale"]
+        for name in ("noise_scale", "noise_fraction"):
+            if d[name] == 1:
+                del d[name]
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
     @classmethod
@@ -176,9 +199,9 @@ class RenderSettings:
         """The settings of query views for a model trained on images rendered with ``training`` (a
         :meth:`to_dict` dict, the model file's ``settings.render``): its camera, object size and distances, with
         the queries' own ``views`` per object, ``seed``, ``sampler`` (None: the training one) and sensor noise
-        (clean unless asked, whatever the training images carried)."""
+        (clean unless asked, whatever the training images carried; on every query view when asked)."""
         return cls.from_dict({**training, "views_per_object": views, "seed": seed, "noise": bool(noise),
-                              "noise_scale": int(noise_scale), **({"sampler": sampler} if sampler else {})})
+                              "noise_scale": int(noise_scale), "noise_fraction": 1.0, **({"sampler": sampler} if sampler else {})})
 
     @classmethod
     def from_dict(cls, d: dict, strict: bool = False) -> "RenderSettings":
@@ -202,6 +225,20 @@ def check_noise_scale(noise: bool, noise_scale: int, what: str = "a view") -> No
     if not 1 <= noise_scale <= MAX_NOISE_SCALE:
         raise ValueError(f"--noise-scale {noise_scale}: at most {MAX_NOISE_SCALE} ({what} costs its square in "
                          f"rendering time and memory)")
+
+
+def check_noise_fraction(noise: bool, noise_fraction: float, views: int) -> None:
+    """Refuse a ``--noise-fraction`` that :class:`RenderSettings` would refuse for ``views`` views per object,
+    naming the command's options (for ``train``, before any data is read)."""
+    if noise_fraction != 1 and not noise:
+        raise ValueError(f"--noise-fraction {noise_fraction:g} says which training views carry the sensor noise: it "
+                         f"needs --noise")
+    if not 0 < noise_fraction <= 1:
+        raise ValueError(f"--noise-fraction {noise_fraction:g}: a share of the views, in (0, 1]")
+    k = noise_fraction * views
+    if abs(k - round(k)) > 1e-9 or round(k) < 1:
+        raise ValueError(f"--noise-fraction {noise_fraction:g} of {views} views per object is {k:g} views: it must "
+                         f"be a whole number of at least 1 (change --noise-fraction or --views)")
 
 
 def _as_float(v, name="value") -> float:
@@ -283,6 +320,7 @@ class ObjectViews:
         self.noise = SensorNoise() if settings.noise else None
         self.renderer = None
         self._caster = None                     # backend "torch": (object key, GridCaster) of the last object
+        self._clean = None                      # noise_fraction < 1 with noise_scale > 1: the clean views' renderer
         self._coeffs: dict[tuple, np.ndarray] = {}
         self.prefilled = False                  #: :meth:`prefill_coeffs` has run
 
@@ -296,11 +334,15 @@ class ObjectViews:
         return self
 
     def close(self):
-        if self.renderer is not None:
-            try:
-                self.renderer.close()
-            finally:
-                self.renderer = None
+        try:
+            if self.renderer is not None:
+                try:
+                    self.renderer.close()
+                finally:
+                    self.renderer = None
+        finally:
+            if self._clean is not None:
+                self._clean.close()
 
     def coeffs(self, record) -> np.ndarray:
         key = (record.split, record.cls, record.id)
@@ -363,8 +405,9 @@ class ObjectViews:
         """Each object's views at its ``poses`` ((R, t) each) with its ``rngs``, as :meth:`_render` gives them.
         ``batched`` (the ``torch`` backend): one :class:`hbeo.render.gridcast.GridCaster` of their grids, every
         view marched together, at most :data:`MANY_RAYS` rays a march, then :meth:`finish` per object; if that
-        fails, and without ``batched``, object by object (:meth:`_render`, which names an object at fault)."""
-        if batched:
+        fails, without ``batched``, and where only some views carry the noise (``noise_fraction``), object by object
+        (:meth:`_render`, which names an object at fault)."""
+        if batched and self.settings.noise_fraction == 1:
             import torch
             from hbeo.render.gridcast import GridCaster
             try:
@@ -389,14 +432,28 @@ class ObjectViews:
 
     def _render(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list) -> dict:
         s = self.settings
+        k = s.noisy_views if s.noise_fraction != 1 else len(R)
         try:
-            depth = self._grid_depth(record, R, t) if s.backend == "torch" else self._mesh_depth(record, R, t)
+            if k < len(R) and s.noise_scale != 1:      # the clean views at the image's size, as a clean set's
+                depth, clean = self._depth(record, R[:k], t[:k]), self._clean_views()._depth(record, R[k:], t[k:])
+            else:
+                depth, clean = self._depth(record, R, t), None
         except DataError:
             raise
         except Exception as err:
             raise DataError(record.path or _record_name(record),
                             f"rendering object {_record_name(record)} failed ({type(err).__name__}: {err})") from err
-        return self.finish(record, position, label, R, t, rngs, depth)
+        return self.finish(record, position, label, R, t, rngs, depth, clean)
+
+    def _depth(self, record, R, t) -> np.ndarray:
+        return self._grid_depth(record, R, t) if self.settings.backend == "torch" else self._mesh_depth(record, R, t)
+
+    def _clean_views(self) -> "ObjectViews":
+        """The views of these settings without noise (at the image's size), for the views ``noise_fraction`` leaves
+        clean."""
+        if self._clean is None:
+            self._clean = ObjectViews(replace(self.settings, noise=False, noise_scale=1, noise_fraction=1.0))
+        return self._clean
 
     def _mesh_depth(self, record, R, t) -> np.ndarray:
         try:
@@ -424,22 +481,29 @@ class ObjectViews:
         return self._caster[1].render(np.zeros(len(R), np.int64), R, t).cpu().numpy()
 
     def finish(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list,
-               depth: np.ndarray) -> dict:
-        """The arrays of rendered views ``depth`` (n, H, W) of one object at poses R, t: sensor noise
-        (if the settings ask for it) from ``rngs`` (one per view, or one stream for all), float16 depth."""
+               depth: np.ndarray, clean: np.ndarray | None = None) -> dict:
+        """The arrays of rendered views ``depth`` (n, H', W', at the sensor's size) of one object at poses R, t:
+        sensor noise (if the settings ask for it) from ``rngs`` (one per view, or one stream for all) on its first
+        :attr:`RenderSettings.noisy_views` views (all where ``noise_fraction`` is 1), float16 depth. ``clean``:
+        the last views, clean and rendered at the image's size, where ``depth`` holds the first ones only."""
         s = self.settings
         depth = np.asarray(depth, np.float32)
         n, (w, h) = len(R), (self.sensor.width, self.sensor.height)
-        if depth.shape != (n, h, w):
-            raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(n, h, w)}")
+        m = n if clean is None else n - len(clean)   # the views in depth
+        if depth.shape != (m, h, w):
+            raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(m, h, w)}")
         if self.noise is not None:
-            if all(g is rngs[0] for g in rngs):       # one stream for all views (a rendered set)
-                depth = np.asarray(self.noise.apply(depth, self.sensor, rngs[0]), np.float32)
+            k = s.noisy_views if s.noise_fraction != 1 else n
+            if all(g is rngs[0] for g in rngs[:k]):   # one stream for all views (a rendered set)
+                noisy = np.asarray(self.noise.apply(depth[:k], self.sensor, rngs[0]), np.float32)
             else:                                     # each query view's own stream
-                depth = np.concatenate([np.asarray(self.noise.apply(depth[k:k + 1], self.sensor, g), np.float32)
-                                        for k, g in enumerate(rngs)])
+                noisy = np.concatenate([np.asarray(self.noise.apply(depth[j:j + 1], self.sensor, g), np.float32)
+                                        for j, g in enumerate(rngs[:k])])
+            depth = np.concatenate([noisy, depth[k:]]) if k < m else noisy
         if (k := s.noise_scale) > 1:                  # the sensor pixel nearest each pixel's centre
             depth = np.ascontiguousarray(depth[:, k // 2::k, k // 2::k])
+        if clean is not None:
+            depth = np.concatenate([depth, np.asarray(clean, np.float32)])
         depth = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16)
         depth[~(depth > 0)] = 0                      # 0 = no object, never negative
         out = {
