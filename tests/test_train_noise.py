@@ -89,3 +89,37 @@ def test_train_noise_at_a_finer_sensor_renders_it_there_and_records_it(ci_render
     capsys.readouterr()
     assert cli.main([*args, "--noise", "--name", "coarse.hbeo"]) == 2      # the set's noise is at scale 2: refused
     assert "different settings" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_train_noise_on_a_share_of_the_views_keeps_the_rest_the_clean_set_s_and_records_it(ci_render, ci_run,
+                                                                                          copy_run, tmp_path, capsys):
+    """--noise-fraction F: each object's first F * views views carry the noise, the others are the clean set's own
+    views; the set, the checkpoint, the provenance and the model file say F, and the option is checked first."""
+    from hbeo import cli
+    from hbeo.model.inference import HBEO
+    from hbeo.model.loop import load_checkpoint
+    from hbeo.render.torch_datasets import DepthShards
+    run = copy_run(ci_run, tmp_path / "run", names=["grids_train.npz", "grids_test.npz", "subspace.npz"])
+    args = ["train", "--dataset", "procedural", "--profile", "ci", "--out", str(run.path), "--epochs", "1",
+            "--max-steps", "2", "--quiet"]
+    for bad, says in ((["--noise-fraction", "0.5"], "needs --noise"),
+                      (["--noise", "--noise-fraction", "0.3"], "2.4 views"),
+                      (["--noise", "--noise-fraction", "0.5", "--data", "stream"], "--data memory")):
+        capsys.readouterr()
+        assert cli.main([*args, *bad]) == 2
+        assert says in capsys.readouterr().err and not run.renders("train").exists()
+    assert cli.main([*args, "--noise", "--noise-scale", "2", "--noise-fraction", "0.5"]) == 0
+    mixed, clean = DepthShards(run.renders("train")), DepthShards(ci_run.renders("train"))
+    s = mixed.manifest.settings
+    assert s.noise and s.noise_scale == 2 and s.noise_fraction == 0.5 and s.noisy_views == 4
+    assert s.views_per_object == clean.manifest.settings.views_per_object == 8
+    for i in range(8):                                # object 0's views: the first four noisy, the rest clean's
+        a, b = mixed[i]["depth"].numpy(), clean[i]["depth"].numpy()
+        assert int(mixed[i]["object_index"]) == int(clean[i]["object_index"]) == 0
+        assert np.array_equal(mixed[i]["rotation"].numpy(), clean[i]["rotation"].numpy())
+        assert np.array_equal(a, b) == (i >= 4), i
+    assert HBEO.load(run.model).settings.render["noise_fraction"] == 0.5
+    data = load_checkpoint(run.training(run.model) / "checkpoint.pt")["settings"]["train"]["data"]
+    assert data["noise_fraction"] == 0.5 and data["noise_scale"] == 2
+    assert json.loads((run.training(run.model) / "provenance.json").read_text())["options"]["noise_fraction"] == 0.5
