@@ -142,10 +142,10 @@ class RenderSettings:
             if not self.noise:
                 raise ValueError(f"RenderSettings.noise_fraction {self.noise_fraction} needs noise: it says which "
                                  f"views carry it")
-            k = self.noise_fraction * self.views_per_object
-            if abs(k - round(k)) > 1e-9 or round(k) < 1:
+            if not _whole_views(self.noise_fraction, self.views_per_object):
                 raise ValueError(f"RenderSettings.noise_fraction {self.noise_fraction} of {self.views_per_object} "
-                                 f"views per object is {k:g} views: it must be a whole number of at least 1")
+                                 f"views per object is {self.noise_fraction * self.views_per_object:g} views: it "
+                                 f"must be a whole number of at least 1")
         object.__setattr__(self, "seed", _as_int(self.seed, "RenderSettings.seed"))
         if self.seed < 0:
             raise ValueError(f"RenderSettings.seed must be a non-negative integer, got {self.seed}")
@@ -201,7 +201,8 @@ class RenderSettings:
         the queries' own ``views`` per object, ``seed``, ``sampler`` (None: the training one) and sensor noise
         (clean unless asked, whatever the training images carried; on every query view when asked)."""
         return cls.from_dict({**training, "views_per_object": views, "seed": seed, "noise": bool(noise),
-                              "noise_scale": int(noise_scale), "noise_fraction": 1.0, **({"sampler": sampler} if sampler else {})})
+                              "noise_scale": int(noise_scale), "noise_fraction": 1.0,
+                              **({"sampler": sampler} if sampler else {})})
 
     @classmethod
     def from_dict(cls, d: dict, strict: bool = False) -> "RenderSettings":
@@ -235,10 +236,16 @@ def check_noise_fraction(noise: bool, noise_fraction: float, views: int) -> None
                          f"needs --noise")
     if not 0 < noise_fraction <= 1:
         raise ValueError(f"--noise-fraction {noise_fraction:g}: a share of the views, in (0, 1]")
+    if not _whole_views(noise_fraction, views):
+        raise ValueError(f"--noise-fraction {noise_fraction:g} of {views} views per object is "
+                         f"{noise_fraction * views:g} views: it must be a whole number of at least 1 (change "
+                         f"--noise-fraction or --views)")
+
+
+def _whole_views(noise_fraction: float, views: int) -> bool:
+    """Whether ``noise_fraction`` of ``views`` views is a whole number of views, at least one."""
     k = noise_fraction * views
-    if abs(k - round(k)) > 1e-9 or round(k) < 1:
-        raise ValueError(f"--noise-fraction {noise_fraction:g} of {views} views per object is {k:g} views: it must "
-                         f"be a whole number of at least 1 (change --noise-fraction or --views)")
+    return abs(k - round(k)) <= 1e-9 and round(k) >= 1
 
 
 def _as_float(v, name="value") -> float:
