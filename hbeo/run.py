@@ -31,7 +31,8 @@ from hbeo.model.fit import TrainOptions
 from hbeo.render.renderset import Manifest, render_set
 from hbeo.limits import check_in_memory, check_workers
 from hbeo.progress import PAPERMILL_HEADER, kernel_history
-from hbeo.render.views import RenderSettings, check_grid_records, check_noise_fraction, check_noise_scale
+from hbeo.render.noise import check_noise_fraction, check_noise_scale
+from hbeo.render.views import RenderSettings, check_grid_records
 from hbeo.rundir import BASELINE_FILES, RunDir, failure_summary
 from hbeo.storage import atomic_text, json_text
 from hbeo.subspace.basis import ObjectSubspace

@@ -7,7 +7,8 @@ import pytest
 
 from hbeo import config
 from hbeo.data import datasets
-from hbeo.render.views import ObjectViews, RenderSettings, check_noise_fraction, object_rng
+from hbeo.render.noise import check_noise_fraction
+from hbeo.render.views import ObjectViews, RenderSettings, object_rng
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,8 @@ import pytest
 from hbeo import config
 from hbeo.data import datasets
 from hbeo.render.noise import SensorNoise
-from hbeo.render.views import MAX_NOISE_SCALE, ObjectViews, RenderSettings
+from hbeo.render.noise import MAX_NOISE_SCALE
+from hbeo.render.views import ObjectViews, RenderSettings
 
 
 @pytest.fixture(scope="module")

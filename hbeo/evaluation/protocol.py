@@ -268,7 +268,7 @@ def evaluate_file(model_path, dataset: str, out, split: str = "test", views: int
     if completion is not None and method != "hbeo":
         raise ValueError(f"--completion is HBEO's completion rule; method {method!r} is not HBEO")
     check_rolls(rolls)                                  # before the model is read (and before torch is imported)
-    from hbeo.render.views import check_noise_scale
+    from hbeo.render.noise import check_noise_scale
     check_noise_scale(noise, noise_scale, "a query")
     from hbeo.baselines.methods import check_method, load_method
     from hbeo.evaluation.evaluate import evaluate_model

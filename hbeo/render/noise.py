@@ -3,6 +3,9 @@
 Depth images are float32 (H, W) or (N, H, W), metres, 0 = no data, as :class:`hbeo.render.renderer.Renderer`
 makes them; pixel (u, v) sees along the camera-frame ray ((u - cx) / fx, (v - cy) / fy, 1) of
 :class:`hbeo.conventions.Intrinsics`. Deterministic given the numpy Generator passed in.
+Also the bounds of where and on which views the noise is applied (:data:`MAX_NOISE_SCALE`,
+:func:`whole_noisy_views`) and the checks of the commands' ``--noise-scale`` and ``--noise-fraction``, shared by
+:class:`hbeo.render.views.RenderSettings`, ``train`` and ``evaluate``.
 Imports :mod:`hbeo.conventions`, numpy and scipy only.
 """
 from __future__ import annotations
@@ -133,3 +136,40 @@ def _grazing_cos(depth: np.ndarray, K: C.Intrinsics, origin=(0, 0)) -> np.ndarra
         c = np.abs(n0 * P[0] + n1 * P[1] + n2 * P[2]) / (nn * pn)
     ok = valid & ok_u & ok_v & (nn > 0)
     return np.where(ok, c, 1.0)
+
+
+# --------------------------------------------------------------------------- where the noise is applied
+
+#: The largest :attr:`hbeo.render.views.RenderSettings.noise_scale` (a view costs its square in rendering time and
+#: memory).
+MAX_NOISE_SCALE = 16
+
+
+def check_noise_scale(noise: bool, noise_scale: int, what: str = "a view") -> None:
+    """Refuse a ``--noise-scale`` that :class:`hbeo.render.views.RenderSettings` would refuse, naming the command's
+    options (for ``train`` and ``evaluate``, before any data or model is read)."""
+    if noise_scale != 1 and not noise:
+        raise ValueError(f"--noise-scale {noise_scale} says where the sensor noise is applied: it needs --noise")
+    if not 1 <= noise_scale <= MAX_NOISE_SCALE:
+        raise ValueError(f"--noise-scale {noise_scale}: at most {MAX_NOISE_SCALE} ({what} costs its square in "
+                         f"rendering time and memory)")
+
+
+def check_noise_fraction(noise: bool, noise_fraction: float, views: int) -> None:
+    """Refuse a ``--noise-fraction`` that :class:`hbeo.render.views.RenderSettings` would refuse for ``views``
+    views per object, naming the command's options (for ``train``, before any data is read)."""
+    if noise_fraction != 1 and not noise:
+        raise ValueError(f"--noise-fraction {noise_fraction:g} says which training views carry the sensor noise: it "
+                         f"needs --noise")
+    if not 0 < noise_fraction <= 1:
+        raise ValueError(f"--noise-fraction {noise_fraction:g}: a share of the views, in (0, 1]")
+    if not whole_noisy_views(noise_fraction, views):
+        raise ValueError(f"--noise-fraction {noise_fraction:g} of {views} views per object is "
+                         f"{noise_fraction * views:g} views: it must be a whole number of at least 1 (change "
+                         f"--noise-fraction or --views)")
+
+
+def whole_noisy_views(noise_fraction: float, views: int) -> bool:
+    """Whether ``noise_fraction`` of ``views`` views is a whole number of views, at least one."""
+    k = noise_fraction * views
+    return abs(k - round(k)) <= 1e-9 and round(k) >= 1

@@ -40,7 +40,7 @@ import numpy as np
 from hbeo import config
 from hbeo import conventions as C
 from hbeo.errors import DataError
-from hbeo.render.noise import SensorNoise
+from hbeo.render.noise import MAX_NOISE_SCALE, SensorNoise, whole_noisy_views
 from hbeo.render.poses import ViewSampler, check_sampler
 from hbeo.rotations import matrix_to_axis_angle
 
@@ -142,7 +142,7 @@ class RenderSettings:
             if not self.noise:
                 raise ValueError(f"RenderSettings.noise_fraction {self.noise_fraction} needs noise: it says which "
                                  f"views carry it")
-            if not _whole_views(self.noise_fraction, self.views_per_object):
+            if not whole_noisy_views(self.noise_fraction, self.views_per_object):
                 raise ValueError(f"RenderSettings.noise_fraction {self.noise_fraction} of {self.views_per_object} "
                                  f"views per object is {self.noise_fraction * self.views_per_object:g} views: it "
                                  f"must be a whole number of at least 1")
@@ -212,40 +212,6 @@ class RenderSettings:
         if strict and (unknown := sorted(set(d) - names, key=str)):
             raise ValueError(f"unknown keys {', '.join(map(str, unknown))} (known: {', '.join(f.name for f in fields(cls))})")
         return cls(**{k: v for k, v in d.items() if k in names})
-
-
-#: The largest :attr:`RenderSettings.noise_scale` (a view costs its square in rendering time and memory).
-MAX_NOISE_SCALE = 16
-
-
-def check_noise_scale(noise: bool, noise_scale: int, what: str = "a view") -> None:
-    """Refuse a ``--noise-scale`` that :class:`RenderSettings` would refuse, naming the command's options (for
-    ``train`` and ``evaluate``, before any data or model is read)."""
-    if noise_scale != 1 and not noise:
-        raise ValueError(f"--noise-scale {noise_scale} says where the sensor noise is applied: it needs --noise")
-    if not 1 <= noise_scale <= MAX_NOISE_SCALE:
-        raise ValueError(f"--noise-scale {noise_scale}: at most {MAX_NOISE_SCALE} ({what} costs its square in "
-                         f"rendering time and memory)")
-
-
-def check_noise_fraction(noise: bool, noise_fraction: float, views: int) -> None:
-    """Refuse a ``--noise-fraction`` that :class:`RenderSettings` would refuse for ``views`` views per object,
-    naming the command's options (for ``train``, before any data is read)."""
-    if noise_fraction != 1 and not noise:
-        raise ValueError(f"--noise-fraction {noise_fraction:g} says which training views carry the sensor noise: it "
-                         f"needs --noise")
-    if not 0 < noise_fraction <= 1:
-        raise ValueError(f"--noise-fraction {noise_fraction:g}: a share of the views, in (0, 1]")
-    if not _whole_views(noise_fraction, views):
-        raise ValueError(f"--noise-fraction {noise_fraction:g} of {views} views per object is "
-                         f"{noise_fraction * views:g} views: it must be a whole number of at least 1 (change "
-                         f"--noise-fraction or --views)")
-
-
-def _whole_views(noise_fraction: float, views: int) -> bool:
-    """Whether ``noise_fraction`` of ``views`` views is a whole number of views, at least one."""
-    k = noise_fraction * views
-    return abs(k - round(k)) <= 1e-9 and round(k) >= 1
 
 
 def _as_float(v, name="value") -> float:
