@@ -405,7 +405,7 @@ class ObjectViews:
 
     def _render(self, record, position: int, label: int, R: np.ndarray, t: np.ndarray, rngs: list) -> dict:
         s = self.settings
-        k = s.noisy_views if s.noise_fraction != 1 else len(R)
+        k = self._noisy(len(R))
         try:
             if k < len(R) and s.noise_scale != 1:      # the clean views at the image's size, as a clean set's
                 depth, clean = self._depth(record, R[:k], t[:k]), self._clean_views()._depth(record, R[k:], t[k:])
@@ -417,6 +417,11 @@ class ObjectViews:
             raise DataError(record.path or _record_name(record),
                             f"rendering object {_record_name(record)} failed ({type(err).__name__}: {err})") from err
         return self.finish(record, position, label, R, t, rngs, depth, clean)
+
+    def _noisy(self, n: int) -> int:
+        """How many of ``n`` views of one object (its first) carry the noise where the settings ask for it: all
+        unless ``noise_fraction`` leaves some clean."""
+        return self.settings.noisy_views if self.settings.noise_fraction != 1 else n
 
     def _depth(self, record, R, t) -> np.ndarray:
         return self._grid_depth(record, R, t) if self.settings.backend == "torch" else self._mesh_depth(record, R, t)
@@ -466,7 +471,7 @@ class ObjectViews:
         if depth.shape != (m, h, w):
             raise RuntimeError(f"renderer returned depth of shape {depth.shape}, expected {(m, h, w)}")
         if self.noise is not None:
-            k = s.noisy_views if s.noise_fraction != 1 else n
+            k = self._noisy(n)
             if all(g is rngs[0] for g in rngs[:k]):   # one stream for all views (a rendered set)
                 noisy = np.asarray(self.noise.apply(depth[:k], self.sensor, rngs[0]), np.float32)
             else:                                     # each query view's own stream
