@@ -9,8 +9,7 @@ import pytest
 
 from hbeo import config
 from hbeo.data import datasets
-from hbeo.render.noise import SensorNoise
-from hbeo.render.noise import MAX_NOISE_SCALE
+from hbeo.render.noise import MAX_NOISE_SCALE, SensorNoise
 from hbeo.render.views import ObjectViews, RenderSettings
 
 
